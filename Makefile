@@ -1,0 +1,31 @@
+# Two commands do all the set-up on a fresh machine (see README.md):
+#   make demo   create .venv, install, train Mono-HDR-GS on the built-in default scene
+#   make test   create .venv, install, run the test suite
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+export MALLOC_MMAP_THRESHOLD_ := 33554432
+export MALLOC_TRIM_THRESHOLD_ := 17179869184
+
+.PHONY: install demo test test-slow clean
+
+$(BIN)/mono-hdr: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	# torch first, pinned to the local CPU wheel: letting pip resolve torch pulls a CUDA build
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(BIN)/mono-hdr
+
+install: $(BIN)/mono-hdr
+
+demo: install
+	$(BIN)/mono-hdr train gs --scene demo-cornell --max-steps 600 --out outputs/demo
+
+test: install
+	$(BIN)/python -m pytest -q
+
+test-slow: install
+	$(BIN)/python -m pytest -q -m slow
+
+clean:
+	rm -rf $(VENV) outputs

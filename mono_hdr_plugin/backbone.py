@@ -1,0 +1,92 @@
+"""The one interface between the meta-algorithm and a 3D backbone.
+
+A backbone knows geometry and how to composite; it knows nothing about HDR. It hands out
+per-primitive LDR colours plus a compositing function that renders ANY number of channels
+with the same weights, so the wrapper can render LDR and HDR in one pass.
+"""
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Literal
+
+import torch
+from torch import Tensor
+
+from mono_hdr_plugin.cameras import Camera
+
+
+@dataclass
+class LdrFeatures:
+    """What a backbone renders for one camera (or one pixel batch of it).
+
+    colors: [..., P, 3] per-primitive LDR colours in [0, 1] (P Gaussians, or P samples per ray).
+    raw_colors: [..., P, 3] the same colours before the backbone's LDR activation (unbounded);
+        baseline methods read them as log radiance, as HDR-NeRF and HDR-GS do.
+    composite: values [..., P, C] -> image [*camera.output_shape, C], with the backbone's
+        weights (alpha blending, volume-rendering weights); any C, one pass.
+    extras: backbone outputs the wrapper passes through (depth, alpha, 2D means, ...).
+    auxiliary: further renders supervised with the LDR loss only (NeRF's coarse network).
+    """
+
+    colors: Tensor
+    raw_colors: Tensor
+    composite: Callable[[Tensor], Tensor]
+    extras: dict[str, Any] = field(default_factory=dict)
+    auxiliary: list["LdrFeatures"] = field(default_factory=list)
+
+
+@dataclass
+class SceneInfo:
+    """What a backbone may know about a scene before training: bounds, init points, cameras."""
+
+    bounds_min: Tensor
+    bounds_max: Tensor
+    train_cameras: list[Camera]
+    points: Tensor | None = None
+    point_colors: Tensor | None = None
+
+    @property
+    def center(self) -> Tensor:
+        return 0.5 * (self.bounds_min + self.bounds_max)
+
+    @property
+    def extent(self) -> float:
+        """Radius of the camera rig, as 3DGS uses for its densification thresholds."""
+        centers = torch.stack([c.center.float() for c in self.train_cameras])
+        return float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max().clamp_min(1e-3))
+
+
+class Backbone(torch.nn.Module):
+    """Base class of every backbone: subclass, set `config_class`, implement `render_ldr_features`.
+
+    Class attributes a backbone sets:
+        config_class: its dataclass of hyper-parameters (tyro turns the fields into flags).
+        loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
+        pixel_batch: None to train on whole images, or the number of rays per step.
+    """
+
+    config_class: ClassVar[type]
+    loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
+    pixel_batch: ClassVar[int | None] = None
+
+    def __init__(self, config: Any, scene: SceneInfo):
+        super().__init__()
+        self.config = config
+        self.max_steps = 30_000
+
+    def set_run_length(self, max_steps: int) -> None:
+        """Told by the trainer before step 0, so schedules (densification) scale to the run."""
+        self.max_steps = max_steps
+
+    def parameter_groups(self) -> list[dict]:
+        """Optimiser groups: dicts with "name", "params" and "lr" (Adam is used)."""
+        return [{"name": "backbone", "params": list(self.parameters()), "lr": 1e-3}]
+
+    def render_ldr_features(self, camera: Camera) -> LdrFeatures:
+        raise NotImplementedError
+
+    def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
+        """Called after each optimiser step: densification, learning-rate schedules, ..."""
+
+    def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
+        """Per-group learning rate at `step`; override for schedules (3DGS position decay)."""
+        return base_lr

@@ -1,0 +1,29 @@
+"""Where a run's data comes from, and which exposures it trains and tests on."""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+
+@dataclass
+class DataConfig:
+    """Dataset selection shared by every command that reads a scene."""
+
+    data: Path | None = None
+    """A dataset folder on disk (HDR-NeRF synthetic/real or HDR-GS layout, detected)."""
+    scene: str | None = None
+    """A built-in studio scene (see `mono-hdr scenes`); used when --data is not given."""
+    layout: Literal["auto", "hdr-nerf-synthetic", "hdr-nerf-real", "hdr-gs"] = "auto"
+    """On-disk layout of --data; auto detects it from the files present."""
+    protocol: Literal["single", "multi", "fixed"] = "single"
+    """single: the paper's setting, every view at exposure t1/t3/t5 chosen by --exposure-index
+    (train and LDR test); multi: HDR-NeRF/HDR-GS, each train view one random exposure of
+    t1/t3/t5, test views at all five; fixed: every view at --fixed-exposure seconds."""
+    exposure_index: int = 1
+    """0, 1, 2 select t1, t3, t5 in the single-exposure protocol."""
+    fixed_exposure: float | None = None
+    """Exposure in seconds for the fixed protocol (must be one the data has)."""
+    downscale: int = 1
+    """Integer factor to shrink images by (area averaging), 2 reproduces the paper's half_res."""
+    seed: int = 0
+    """Seed for the random exposure choice of the multi protocol."""
