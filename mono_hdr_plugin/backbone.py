@@ -62,11 +62,13 @@ class Backbone(torch.nn.Module):
         config_class: its dataclass of hyper-parameters (tyro turns the fields into flags).
         loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
         pixel_batch: None to train on whole images, or the number of rays per step.
+        render_chunk: None to render whole images in one call, or the most rays per call.
     """
 
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
     pixel_batch: ClassVar[int | None] = None
+    render_chunk: ClassVar[int | None] = None
 
     def __init__(self, config: Any, scene: SceneInfo):
         super().__init__()
@@ -84,8 +86,20 @@ class Backbone(torch.nn.Module):
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         raise NotImplementedError
 
+    def prepare_state_dict(self, state: dict[str, Tensor]) -> None:
+        """Resize parameters to match a checkpoint before loading it (3DGS grows and prunes)."""
+        for name, value in state.items():
+            current = self.get_parameter(name) if name in dict(self.named_parameters()) else None
+            if current is not None and current.shape != value.shape:
+                current.data = torch.empty_like(value)
+
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
-        """Called after each optimiser step: densification, learning-rate schedules, ..."""
+        """Called after each optimiser step, before gradients are cleared: densification, ...
+
+        Gradients of the tensors the backbone put in `features.extras` (3DGS: the screen-space
+        means) are still readable here. A backbone that adds or removes parameters must keep
+        `optimizer` state in step (its param_groups carry the "name" keys given above).
+        """
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """Per-group learning rate at `step`; override for schedules (3DGS position decay)."""

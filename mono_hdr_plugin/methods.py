@@ -1,0 +1,196 @@
+"""Methods that lift any backbone to HDR: Mono-HDR (the meta-algorithm), its ablations, and
+the HDR-NeRF / HDR-GS style baselines, all in the same wrapper role.
+
+A method takes a backbone's LdrFeatures for one view, renders LDR and HDR with ONE call of
+`features.composite`, and computes the training loss. It never looks inside the backbone.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import torch
+from torch import Tensor, nn
+
+from mono_hdr_plugin.backbone import LdrFeatures
+from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PlainH2L,
+                                        PlainL2H)
+from mono_hdr_plugin.losses import LossKind, photometric_loss
+from mono_hdr_plugin.metrics import normalise_hdr
+
+MethodName = Literal["mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs"]
+METHODS: tuple[str, ...] = ("mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs")
+# Paper defaults of the loss weights per backbone loss kind (REFERENCE.md section 1).
+DEFAULT_BETA = {"l1_dssim": 0.05, "mse": 0.01}
+# Largest log radiance the baselines exponentiate: exp(30) ~ 1e13 stays finite in float32.
+MAX_LOG_RADIANCE = 30.0
+
+
+@dataclass
+class MethodConfig:
+    """How LDR features become HDR, and the loss terms that train them."""
+
+    method: MethodName = "mono"
+    """mono (L2H-CC + H2L-CC), the ablations mlp-l2h / mlp-h2l / no-h2l, or the baselines
+    hdr-nerf (per-sample CRF of ln E + ln dt) and hdr-gs (per-pixel tone mapper)."""
+    hidden: int = 128
+    """Hidden width of the converters and the baselines' CRF networks."""
+    use_ldr_loss: bool = True
+    """L_ldr: rendered LDR against the LDR photo."""
+    use_hdr_loss: bool = True
+    """L_hdr: normalised HDR render against normalised HDR ground truth (views that have it)."""
+    use_h2l_loss: bool = True
+    """L_h2l: H2L-CC(normalised HDR render) against the LDR photo (Mono-HDR only)."""
+    alpha: float = 0.6
+    """Weight of L_hdr."""
+    beta: float | None = None
+    """Weight of L_h2l; default 0.05 with the 3DGS loss, 0.01 with the NeRF loss."""
+    loss: Literal["auto", "l1_dssim", "mse"] = "auto"
+    """Photometric loss; auto takes the backbone's (3DGS: L1 + D-SSIM, NeRF: MSE)."""
+    dssim_weight: float = 0.2
+    """lambda of (1 - lambda) L1 + lambda (1 - SSIM)."""
+    converter_lr: float = 5e-4
+    """Learning rate of L2H-CC / H2L-CC / the CRF networks (hard-coded in the official code)."""
+    unit_exposure_weight: float = 0.5
+    """HDR-NeRF: weight of the loss pinning CRF(ln 1) to unit_exposure_value."""
+    unit_exposure_value: float = 0.5
+    """HDR-NeRF: CRF output at unit exposure (0.5 synthetic, 0.73 real scenes)."""
+    crf_warmup_steps: int = 500
+    """Baselines: the CRF learning rate ramps up linearly over these first steps."""
+
+
+@dataclass
+class MethodOutput:
+    """Images rendered for one view: [*shape, 3] each."""
+
+    ldr: Tensor
+    hdr: Tensor
+    ldr_from_hdr: Tensor | None = None
+    auxiliary_ldr: list[Tensor] = field(default_factory=list)
+
+
+@dataclass
+class Targets:
+    """Supervision for one view (or pixel batch of it)."""
+
+    ldr: Tensor
+    exposure: float
+    hdr: Tensor | None = None
+
+
+class HdrMethod(nn.Module):
+    """Base of every method: forward renders, `losses` scores, `parameter_groups` trains."""
+
+    renders_any_exposure = False
+
+    def __init__(self, config: MethodConfig, loss_kind: LossKind):
+        super().__init__()
+        self.config = config
+        self.loss_kind = loss_kind if config.loss == "auto" else config.loss
+        self.beta = DEFAULT_BETA[loss_kind] if config.beta is None else config.beta
+
+    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        raise NotImplementedError
+
+    def render(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        """forward plus the auxiliary renders (NeRF's coarse pass), LDR only."""
+        output = self(features, exposure)
+        output.auxiliary_ldr = [self(aux, exposure).ldr for aux in features.auxiliary]
+        return output
+
+    def _loss(self, pred: Tensor, target: Tensor) -> Tensor:
+        return photometric_loss(pred, target, self.loss_kind, self.config.dssim_weight)
+
+    def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
+        """Named loss terms, already weighted; the training loss is their sum."""
+        config, terms = self.config, {}
+        if config.use_ldr_loss:
+            terms["ldr"] = self._loss(output.ldr, targets.ldr)
+            for index, aux in enumerate(output.auxiliary_ldr):
+                terms[f"ldr_aux{index}"] = self._loss(aux, targets.ldr)
+        if config.use_hdr_loss and targets.hdr is not None:
+            terms["hdr"] = config.alpha * self._loss(normalise_hdr(output.hdr), normalise_hdr(targets.hdr))
+        return terms
+
+    def parameter_groups(self) -> list[dict]:
+        return [{"name": "method", "params": list(self.parameters()), "lr": self.config.converter_lr}]
+
+    def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
+        return base_lr
+
+
+class MonoHDR(HdrMethod):
+    """The meta-algorithm: L2H-CC per primitive, one compositing pass, H2L-CC closes the loop."""
+
+    def __init__(self, config: MethodConfig, loss_kind: LossKind):
+        super().__init__(config, loss_kind)
+        self.l2h = PlainL2H(config.hidden) if config.method == "mlp-l2h" else L2HColorConverter(config.hidden)
+        self.h2l: nn.Module | None = None
+        if config.method == "mlp-h2l":
+            self.h2l = PlainH2L(config.hidden)
+        elif config.method != "no-h2l":
+            self.h2l = H2LColorConverter(config.hidden)
+
+    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        hdr_colors = self.l2h(features.colors)
+        image = features.composite(torch.cat([features.colors, hdr_colors], dim=-1))
+        ldr, hdr = image[..., :3], image[..., 3:]
+        ldr_from_hdr = self.h2l(normalise_hdr(hdr)) if self.h2l is not None else None
+        return MethodOutput(ldr=ldr, hdr=hdr, ldr_from_hdr=ldr_from_hdr)
+
+    def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
+        terms = super().losses(output, targets, step)
+        if self.config.use_h2l_loss and output.ldr_from_hdr is not None:
+            terms["h2l"] = self.beta * self._loss(output.ldr_from_hdr, targets.ldr)
+        return terms
+
+
+class CrfBaseline(HdrMethod):
+    """Shared part of the baselines: colours are log radiance, LDR = CRF(ln E + ln dt)."""
+
+    renders_any_exposure = True
+
+    def __init__(self, config: MethodConfig, loss_kind: LossKind):
+        super().__init__(config, loss_kind)
+        self.crf = PerChannelCRF(config.hidden)
+
+    def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
+        warmup = self.config.crf_warmup_steps
+        return base_lr if warmup <= 0 else base_lr * min(1.0, (step + 1) / warmup)
+
+
+class HdrNerfBaseline(CrfBaseline):
+    """HDR-NeRF style: the CRF is applied to every primitive, then composited with ln E."""
+
+    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        log_radiance = features.raw_colors.clamp(max=MAX_LOG_RADIANCE)
+        ldr_colors = self.crf(log_radiance + math.log(exposure))
+        image = features.composite(torch.cat([ldr_colors, log_radiance], dim=-1))
+        return MethodOutput(ldr=image[..., :3], hdr=torch.exp(image[..., 3:]))
+
+    def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
+        terms = super().losses(output, targets, step)
+        unit = self.crf(torch.zeros(1, 3, device=output.ldr.device))
+        terms["unit_exposure"] = self.config.unit_exposure_weight * torch.mean(
+            (unit - self.config.unit_exposure_value) ** 2)
+        return terms
+
+
+class HdrGsBaseline(CrfBaseline):
+    """HDR-GS style: composite log radiance, then tone-map each pixel with ln dt."""
+
+    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        log_image = features.composite(features.raw_colors.clamp(max=MAX_LOG_RADIANCE))
+        ldr = self.crf(log_image + math.log(exposure))
+        return MethodOutput(ldr=ldr, hdr=torch.exp(log_image))
+
+
+def build_method(config: MethodConfig, loss_kind: LossKind) -> HdrMethod:
+    """The method named in the config, for a backbone whose default loss is `loss_kind`."""
+    if config.method in ("mono", "mlp-l2h", "mlp-h2l", "no-h2l"):
+        return MonoHDR(config, loss_kind)
+    if config.method == "hdr-nerf":
+        return HdrNerfBaseline(config, loss_kind)
+    if config.method == "hdr-gs":
+        return HdrGsBaseline(config, loss_kind)
+    raise ValueError(f"unknown method {config.method!r}; choose one of {', '.join(METHODS)}")

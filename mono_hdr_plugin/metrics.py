@@ -1,0 +1,124 @@
+"""Image metrics: PSNR, SSIM (scikit-image / 3DGS settings), mu-law HDR metrics, optional LPIPS.
+
+All functions take torch tensors [H, W, C] (or [N, C] for PSNR) with LDR values in [0, 1].
+"""
+
+import math
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+MU = 5000.0
+SSIM_SIGMA = 1.5
+SSIM_RADIUS = 5  # scikit-image: int(truncate * sigma + 0.5) with truncate = 3.5
+
+
+def psnr(pred: Tensor, target: Tensor, data_range: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB; identical images give +inf (reported as such)."""
+    if pred.shape != target.shape:
+        raise ValueError(f"psnr: shapes differ, {tuple(pred.shape)} vs {tuple(target.shape)}")
+    mse = torch.mean((pred.double() - target.double()) ** 2).item()
+    return math.inf if mse == 0.0 else 10.0 * math.log10(data_range**2 / mse)
+
+
+def _gaussian_window(dtype: torch.dtype) -> Tensor:
+    offsets = torch.arange(-SSIM_RADIUS, SSIM_RADIUS + 1, dtype=dtype)
+    kernel = torch.exp(-(offsets**2) / (2 * SSIM_SIGMA**2))
+    return kernel / kernel.sum()
+
+
+def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+    """Per-pixel SSIM [H - 10, W - 10, C] of two images [H, W, C].
+
+    Gaussian window (sigma 1.5, 11 taps), population covariance, K1 = 0.01, K2 = 0.03: the
+    3DGS SSIM. Only windows that lie inside the image are kept, which is exactly the region
+    scikit-image averages (it crops the border its padding touched), so the mean matches
+    `skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
+    use_sample_covariance=False, data_range=1, channel_axis=-1)`. Differentiable.
+    """
+    if pred.shape != target.shape:
+        raise ValueError(f"ssim: shapes differ, {tuple(pred.shape)} vs {tuple(target.shape)}")
+    height, width, channels = pred.shape
+    if min(height, width) < 2 * SSIM_RADIUS + 1:
+        raise ValueError(f"ssim needs images of at least {2 * SSIM_RADIUS + 1} pixels per side, "
+                         f"got {height}x{width}")
+    window = _gaussian_window(pred.dtype)
+    # [5C, 1, H, W]: x, y, x^2, y^2, xy filtered together with one separable convolution.
+    x, y = pred.permute(2, 0, 1), target.permute(2, 0, 1)
+    stack = torch.cat([x, y, x * x, y * y, x * y]).unsqueeze(1)
+    filtered = F.conv2d(stack, window.view(1, 1, -1, 1))
+    filtered = F.conv2d(filtered, window.view(1, 1, 1, -1)).squeeze(1)
+    mu_x, mu_y, xx, yy, xy = filtered.split(channels)
+    var_x, var_y, cov = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    numerator = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
+    denominator = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
+    return (numerator / denominator).permute(1, 2, 0)
+
+
+def ssim(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+    """Mean SSIM of two images [H, W, C] (scalar tensor, differentiable)."""
+    return ssim_map(pred, target, data_range).mean()
+
+
+def mu_law(x: Tensor) -> Tensor:
+    """mu-law tone map T(x) = log(1 + 5000 x) / log(5001) of values in [0, 1]."""
+    return torch.log1p(MU * x) / math.log1p(MU)
+
+
+def normalise_hdr(hdr: Tensor, reference_max: Tensor | None = None) -> Tensor:
+    """HDR -> [0, 1]: divide by a maximum (the image's own unless given), clamp, mu-law.
+
+    An all-zero image stays zero instead of dividing by zero.
+    """
+    peak = hdr.max() if reference_max is None else reference_max
+    return mu_law((hdr / peak.clamp_min(1e-12)).clamp(0.0, 1.0))
+
+
+HdrNormalisation = Literal["own_max", "gt_max"]
+
+
+def tone_mapped_pair(pred_hdr: Tensor, gt_hdr: Tensor, normalisation: HdrNormalisation) -> tuple[Tensor, Tensor]:
+    """The official evaluations' mu-law images of a predicted and a ground-truth HDR image.
+
+    own_max (Mono-HDR-GS): prediction by its own max, GT by its own max then quantised to
+    8 bits as the official code's PIL image is. gt_max (Mono-HDR-NeRF eval_hdr.py): both by
+    the GT max, so the prediction's absolute scale counts.
+    """
+    gt_max = gt_hdr.max()
+    if normalisation == "own_max":
+        gt = torch.round(normalise_hdr(gt_hdr) * 255.0) / 255.0
+        return normalise_hdr(pred_hdr), gt
+    return normalise_hdr(pred_hdr, gt_max), normalise_hdr(gt_hdr, gt_max)
+
+
+def hdr_metrics(pred_hdr: Tensor, gt_hdr: Tensor) -> dict[str, float]:
+    """mu-law PSNR/SSIM under both official normalisations, named."""
+    results = {}
+    for normalisation, suffix in (("own_max", ""), ("gt_max", "_gt_max")):
+        pred, gt = tone_mapped_pair(pred_hdr, gt_hdr, normalisation)
+        results[f"hdr_psnr{suffix}"] = psnr(pred, gt)
+        results[f"hdr_ssim{suffix}"] = ssim(pred.double(), gt.double()).item()
+    return results
+
+
+class LpipsUnavailable(RuntimeError):
+    """LPIPS needs network weights that are not on this machine."""
+
+
+def load_lpips():
+    """The LPIPS (AlexNet) metric if its package and weights are installed locally.
+
+    Raises LpipsUnavailable with the reason otherwise; nothing is downloaded.
+    """
+    try:
+        import lpips  # noqa: PLC0415 - optional dependency
+    except ImportError as error:
+        raise LpipsUnavailable("LPIPS skipped: the 'lpips' package is not installed "
+                               "(pip install lpips, with its AlexNet weights cached)") from error
+    try:
+        return lpips.LPIPS(net="alex", verbose=False, pretrained=True)
+    except Exception as error:  # a download attempt fails without network
+        raise LpipsUnavailable(f"LPIPS skipped: its network weights are not available locally ({error})") from error
