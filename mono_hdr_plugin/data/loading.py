@@ -1,0 +1,85 @@
+"""The one entry point from a DataConfig to a SceneData: files on disk or a studio scene."""
+
+import numpy as np
+import torch
+
+from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.protocols import select_shots
+
+
+def scene_names() -> list[str]:
+    """Names of the built-in studio scenes."""
+    from mono_hdr_plugin.studio.scenes import SCENES
+
+    return list(SCENES)
+
+
+def captured_scene(config: DataConfig) -> CapturedScene:
+    """Every photo of the scene that `config` names (--data folder or --scene name)."""
+    if config.data is not None:
+        from mono_hdr_plugin.data.layouts import read_layout
+
+        return read_layout(config.data, config.layout)
+    if config.scene is not None:
+        from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
+
+        return studio_captured_scene(get_scene(config.scene), seed=config.seed)
+    raise DatasetError("no scene given: pass --data FOLDER or --scene NAME "
+                       f"(built-in scenes: {', '.join(scene_names())})")
+
+
+def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
+    """Average `factor` x `factor` pixel blocks (area resampling); the remainder is cropped."""
+    if factor == 1:
+        return image
+    height, width = image.shape[0] // factor, image.shape[1] // factor
+    if height == 0 or width == 0:
+        raise DatasetError(f"{label}: image {image.shape[1]}x{image.shape[0]} is smaller than "
+                           f"--downscale {factor}; use a smaller factor")
+    blocks = image[: height * factor, : width * factor].reshape(height, factor, width, factor, 3)
+    return blocks.mean(axis=(1, 3), dtype=np.float32)
+
+
+def _views(view: CapturedView, shots: list[Shot], factor: int) -> list[View]:
+    camera = view.camera.scaled(1.0 / factor) if factor > 1 else view.camera
+    hdr = None
+    if view.hdr is not None:
+        hdr = torch.from_numpy(downscale_image(view.hdr(), factor, view.name))
+    return [View(camera=camera, image=torch.from_numpy(downscale_image(shot.image(), factor, shot.name)),
+                 exposure=float(shot.exposure), view_id=view.view_id, name=shot.name, hdr=hdr)
+            for shot in shots]
+
+
+def check_same_size(scene: CapturedScene, views: list[View]) -> None:
+    """Every image of a scene must have one size: a backbone renders one image size."""
+    sizes = {(v.camera.width, v.camera.height) for v in views}
+    if len(sizes) > 1:
+        examples = {size: next(v.name for v in views if (v.camera.width, v.camera.height) == size)
+                    for size in sizes}
+        listing = ", ".join(f"{name} is {w}x{h}" for (w, h), name in examples.items())
+        raise DatasetError(f"scene {scene.name!r} mixes image sizes ({listing}); resize all images "
+                           "to one size (and scale the intrinsics with them)")
+
+
+def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
+    """Apply the exposure protocol and --downscale; decode only the chosen photos."""
+    if config.downscale < 1:
+        raise DatasetError(f"--downscale must be a positive integer, got {config.downscale}")
+    chosen = select_shots(scene, config)
+    splits: dict[str, list[View]] = {"train": [], "test": []}
+    for view in scene.views:
+        splits[view.split].extend(_views(view, chosen[id(view)], config.downscale))
+    check_same_size(scene, splits["train"] + splits["test"])
+    metadata = {**scene.metadata, "protocol": config.protocol,
+                "exposure_levels": scene.exposure_levels}
+    return SceneData(name=scene.name, train=splits["train"], test=splits["test"],
+                     bounds_min=scene.bounds_min, bounds_max=scene.bounds_max, points=scene.points,
+                     point_colors=scene.point_colors, metadata=metadata)
+
+
+def load_scene(config: DataConfig) -> SceneData:
+    """Load the scene `config` names under its exposure protocol: the one call trainers make."""
+    return to_scene_data(captured_scene(config), config)

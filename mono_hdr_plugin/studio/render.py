@@ -1,0 +1,146 @@
+"""Render studio scenes with Mitsuba 3, cached on disk by a hash of everything that shapes them.
+
+The `scalar_rgb` variant is used: it needs no system package. `llvm_ad_rgb` is faster where
+it works, but on this project's machines its LLVM backend aborts the whole process
+("LLVM ERROR: Cannot select"), which cannot be caught; set MONO_HDR_MITSUBA_VARIANT to try it.
+"""
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.data.io import atomic_path
+from mono_hdr_plugin.studio.scene import StudioScene
+
+RENDER_VERSION = 1
+"""Bump when the rendering code changes what a cached render holds."""
+
+# Mitsuba's sensor looks along +z with +y up and +x to the left; OpenCV has +x right and +y
+# down, so flipping x and y maps one onto the other.
+OPENCV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+@dataclass
+class SceneRender:
+    """All views of a scene: linear radiance and the surface point seen by each pixel.
+
+    radiance: [V, H, W, 3] float32, scaled so the middle exposure maps the median to the
+        scene's key value (the HDR ground truth). positions: [V, H, W, 3] world points.
+    hit: [V, H, W] bool, whether the pixel sees a surface (False for the sky).
+    """
+
+    radiance: np.ndarray
+    positions: np.ndarray
+    hit: np.ndarray
+
+
+def cache_dir() -> Path:
+    """$MONO_HDR_CACHE, or ~/.cache/mono-hdr-3d."""
+    return Path(os.environ.get("MONO_HDR_CACHE", Path.home() / ".cache" / "mono-hdr-3d"))
+
+
+def _jsonable(value):
+    if isinstance(value, np.ndarray):
+        return np.round(value, 9).tolist()
+    if isinstance(value, dict):
+        return {key: _jsonable(item) for key, item in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(item) for item in value]
+    return value
+
+
+def render_key(scene: StudioScene) -> str:
+    """Hash of the scene content, cameras, resolution, sample count and render settings."""
+    poses = np.stack([c.c2w.numpy() for c in scene.cameras()])
+    description = {"content": _jsonable(scene.content()), "poses": _jsonable(poses),
+                   "fov": scene.rig.fov_deg, "resolution": scene.resolution, "spp": scene.spp,
+                   "max_depth": scene.max_depth, "key": scene.key_value,
+                   "exposures": scene.exposures, "version": RENDER_VERSION}
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _mitsuba():
+    import mitsuba
+
+    variant = os.environ.get("MONO_HDR_MITSUBA_VARIANT", "scalar_rgb")
+    if mitsuba.variant() != variant:
+        mitsuba.set_variant(variant)
+    return mitsuba
+
+
+def _to_mitsuba(value, mitsuba):
+    """Replace the numpy [4, 4] matrices of a scene dict by Mitsuba transforms."""
+    if isinstance(value, np.ndarray):
+        return mitsuba.ScalarTransform4f(value.tolist())
+    if isinstance(value, dict):
+        return {key: _to_mitsuba(item, mitsuba) for key, item in value.items()}
+    return value
+
+
+def mitsuba_sensor(camera: Camera, spp: int, mitsuba) -> dict:
+    """A Mitsuba perspective sensor that sees exactly what the OpenCV `camera` sees."""
+    fov_x = np.degrees(2 * np.arctan(0.5 * camera.width / camera.fx))
+    to_world = camera.c2w.double().numpy() @ OPENCV_TO_MITSUBA
+    return {"type": "perspective", "fov": float(fov_x), "fov_axis": "x",
+            "to_world": mitsuba.ScalarTransform4f(to_world.tolist()),
+            "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent", "sample_count": spp}}
+
+
+def _render_view(content: dict, camera: Camera, scene: StudioScene, mitsuba, seed: int):
+    """(radiance [H, W, 3], positions [H, W, 3], hit [H, W]) of one view."""
+    shading = mitsuba.load_dict({"type": "scene", **content,
+                                 "integrator": {"type": "path", "max_depth": scene.max_depth},
+                                 "sensor": mitsuba_sensor(camera, scene.spp, mitsuba)})
+    radiance = np.array(mitsuba.render(shading, seed=seed), dtype=np.float32)[..., :3]
+    geometry = mitsuba.load_dict({"type": "scene", **content,
+                                  "integrator": {"type": "aov", "aovs": "pp:position,dd:depth"},
+                                  "sensor": mitsuba_sensor(camera, 1, mitsuba)})
+    aov = np.array(mitsuba.render(geometry, seed=seed), dtype=np.float32)
+    return radiance, aov[..., :3], aov[..., 3] > 0
+
+
+def radiance_scale(radiance: np.ndarray, scene: StudioScene) -> float:
+    """Factor that makes the middle exposure map the median pixel luminance to the key value."""
+    median = float(np.median(luminance(radiance)))
+    middle_exposure = sorted(scene.exposures)[len(scene.exposures) // 2]
+    return scene.key_value / (middle_exposure * max(median, 1e-12))
+
+
+def luminance(radiance: np.ndarray) -> np.ndarray:
+    """Rec. 709 luminance of linear RGB [..., 3]."""
+    return radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
+    """Every view of `scene`, from the cache when the same render was done before."""
+    path = cache_dir() / "studio" / f"{scene.name}-{render_key(scene)}.npz"
+    if use_cache and path.is_file():
+        with np.load(path) as cached:
+            return SceneRender(cached["radiance"], cached["positions"], cached["hit"])
+    mitsuba = _mitsuba()
+    content = _to_mitsuba(scene.content(), mitsuba)
+    views = [_render_view(content, camera, scene, mitsuba, seed)
+             for seed, camera in enumerate(scene.cameras())]
+    radiance, positions, hit = (np.stack(parts) for parts in zip(*views))
+    render = SceneRender(radiance * np.float32(radiance_scale(radiance, scene)), positions, hit)
+    if use_cache:
+        with atomic_path(path) as temporary, open(temporary, "wb") as handle:
+            np.savez(handle, radiance=render.radiance, positions=render.positions, hit=render.hit)
+    return render
+
+
+def dynamic_range(radiance: np.ndarray, dark_percentile: float = 1.0) -> float:
+    """Brightest pixel luminance over the darkest lit surface (a low percentile of lit pixels).
+
+    A low percentile rather than the minimum, so a few Monte Carlo outliers do not decide it.
+    """
+    values = luminance(radiance).ravel()
+    lit = values[values > 0]
+    return float(values.max() / np.percentile(lit, dark_percentile)) if lit.size else 0.0

@@ -1,0 +1,151 @@
+"""What a studio scene is: Mitsuba 3 content, a camera rig, render settings, capture effects.
+
+Scene content is a plain Python dict in Mitsuba's `load_dict` format whose transforms are
+numpy [4, 4] matrices (converted when rendering), so a definition can be hashed for the
+render cache without importing Mitsuba.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+
+from mono_hdr_plugin.cameras import Camera, focal_from_fov, look_at
+from mono_hdr_plugin.studio.capture import CaptureSettings, validate_effects
+
+STUDIO_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
+"""t1..t5 in seconds, the synthetic HDR-NeRF/HDR-GS exposure times."""
+
+
+@dataclass(frozen=True)
+class CameraRig:
+    """Cameras on a sphere around `target`: an arc (forward-facing) or a full hemisphere sweep.
+
+    View i sits at azimuth lerp(azimuth_deg, i / (views - 1)) and an elevation that swings
+    between the two `elevation_deg` values, all looking at `target` with world z up.
+    """
+
+    target: tuple[float, float, float]
+    radius: float
+    azimuth_deg: tuple[float, float] = (-120.0, -60.0)
+    elevation_deg: tuple[float, float] = (15.0, 30.0)
+    fov_deg: float = 50.0
+    views: int = 35
+
+    def eyes(self) -> np.ndarray:
+        """[views, 3] camera centres."""
+        steps = np.linspace(0.0, 1.0, self.views)
+        azimuth = np.radians(np.interp(steps, [0, 1], self.azimuth_deg))
+        # Elevation swings up and down three times so the views do not all lie on one circle.
+        swing = 0.5 - 0.5 * np.cos(steps * 6 * np.pi)
+        elevation = np.radians(np.interp(swing, [0, 1], self.elevation_deg))
+        offsets = np.stack([np.cos(elevation) * np.cos(azimuth),
+                            np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1)
+        return np.asarray(self.target) + self.radius * offsets
+
+    def cameras(self, width: int, height: int) -> list[Camera]:
+        """One OpenCV camera per view; principal point at the image centre, square pixels."""
+        focal = focal_from_fov(math.radians(self.fov_deg), width)
+        target = torch.tensor(self.target, dtype=torch.float32)
+        return [Camera(c2w=look_at(torch.tensor(eye, dtype=torch.float32), target), fx=focal,
+                       fy=focal, cx=width / 2, cy=height / 2, width=width, height=height)
+                for eye in self.eyes()]
+
+
+@dataclass(frozen=True)
+class StudioScene:
+    """A built-in synthetic HDR scene.
+
+    content: builds the Mitsuba scene dict (shapes, emitters, no sensor or integrator).
+    effects: the capture effects the simulator applies to this scene, and only those.
+    """
+
+    name: str
+    description: str
+    content: Callable[[], dict]
+    rig: CameraRig
+    resolution: tuple[int, int] = (128, 128)
+    spp: int = 64
+    max_depth: int = 6
+    effects: tuple[str, ...] = ("exposure", "crf", "clip", "quantize")
+    capture: CaptureSettings = field(default_factory=CaptureSettings)
+    exposures: tuple[float, ...] = STUDIO_EXPOSURES
+    key_value: float = 0.1
+    """Median scene radiance is scaled so that the middle exposure maps it to this value."""
+
+    def __post_init__(self):
+        validate_effects(self.effects)
+
+    @property
+    def width(self) -> int:
+        return self.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.resolution[1]
+
+    def cameras(self) -> list[Camera]:
+        return self.rig.cameras(self.width, self.height)
+
+    def split(self, view: int) -> str:
+        """Alternate views: even views train, odd views test."""
+        return "train" if view % 2 == 0 else "test"
+
+
+def translate(x: float, y: float, z: float) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, 3] = (x, y, z)
+    return matrix
+
+
+def scale(x: float, y: float | None = None, z: float | None = None) -> np.ndarray:
+    return np.diag([x, x if y is None else y, x if z is None else z, 1.0])
+
+
+def rotate(axis: str, degrees: float) -> np.ndarray:
+    """Rotation about a world axis ('x', 'y' or 'z')."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
+    matrix = np.eye(4)
+    matrix[i, i], matrix[i, j], matrix[j, i], matrix[j, j] = c, -s, s, c
+    return matrix
+
+
+def place(*transforms: np.ndarray) -> np.ndarray:
+    """Compose transforms applied right to left (the last one first), like Mitsuba's chains."""
+    matrix = np.eye(4)
+    for transform in transforms:
+        matrix = matrix @ transform
+    return matrix
+
+
+def rgb(r: float, g: float | None = None, b: float | None = None) -> dict:
+    return {"type": "rgb", "value": [r, r if g is None else g, r if b is None else b]}
+
+
+def diffuse(colour: dict) -> dict:
+    return {"type": "diffuse", "reflectance": colour}
+
+
+def checker(colour0: dict, colour1: dict, tiles: float) -> dict:
+    return {"type": "checkerboard", "color0": colour0, "color1": colour1,
+            "to_uv": scale(tiles, tiles, 1.0)}
+
+
+def box(centre, size, bsdf: dict) -> dict:
+    """An axis-aligned box with the given centre and full size (x, y, z)."""
+    return {"type": "cube", "to_world": place(translate(*centre), scale(*(s / 2 for s in size))),
+            "bsdf": bsdf}
+
+
+def panel(transform: np.ndarray, bsdf: dict) -> dict:
+    """A rectangle ([-1, 1]^2 in its own xy plane, normal +z) placed by `transform`."""
+    return {"type": "rectangle", "to_world": transform, "bsdf": bsdf}
+
+
+def lamp(centre, radius: float, radiance: tuple[float, float, float]) -> dict:
+    """A visible spherical emitter (a bulb)."""
+    return {"type": "sphere", "center": list(centre), "radius": radius,
+            "emitter": {"type": "area", "radiance": rgb(*radiance)}}
