@@ -1,0 +1,172 @@
+"""The `mono-hdr` command line (tyro). Each command is a config dataclass plus a function."""
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Callable
+
+import tyro
+from rich.console import Console
+from rich.table import Table
+
+from mono_hdr_plugin.data.config import DataConfig
+
+console = Console()
+
+
+@dataclass
+class EvalConfig:
+    """Evaluate a checkpoint on the test views and write OUT/metrics.json (and renders)."""
+
+    checkpoint: Path
+    """A checkpoint written by `mono-hdr train` (OUT/checkpoints/latest.pt)."""
+    out: Path = Path("outputs/eval")
+    """Folder for metrics.json and renders/."""
+    data: Annotated[DataConfig | None, tyro.conf.arg(name="data-config")] = None
+    """Evaluate on other data than the run's own (omit to reuse the training data settings)."""
+    save_renders: bool = True
+    """Write EXR and PNG renders of the test views."""
+
+
+@dataclass
+class RenderConfig:
+    """Render the test views of a checkpoint: HDR as EXR, LDR as PNG at chosen exposures."""
+
+    checkpoint: Path
+    """A checkpoint written by `mono-hdr train`."""
+    out: Path = Path("outputs/render")
+    """Folder for the images."""
+    exposures: tuple[float, ...] = ()
+    """Exposure times in seconds for LDR PNGs (default: the training exposures). Baselines use
+    their learned CRF; Mono-HDR's LDR branch exists at its training exposure only, so other
+    exposures are shown as the HDR render scaled by the exposure through the sRGB curve."""
+    max_views: int | None = None
+    """Render at most this many test views."""
+
+
+@dataclass
+class BackbonesConfig:
+    """List every backbone with where it came from."""
+
+
+def command_train(argv: list[str]) -> None:
+    from mono_hdr_plugin.registry import available_backbones  # noqa: PLC0415
+    from mono_hdr_plugin.train import build_trainer, train_config_for  # noqa: PLC0415
+
+    backbones = available_backbones()
+    preset = _scan_preset(argv)
+    defaults = {}
+    for name, entry in backbones.items():
+        config_class = entry.backbone_class.config_class
+        backbone_defaults = config_class.preset(preset) if preset and hasattr(config_class, "preset") else config_class()
+        defaults[name] = train_config_for(config_class)(backbone=backbone_defaults, preset=preset)
+    config = tyro.extras.subcommand_cli_from_dict(defaults, args=argv, prog="mono-hdr train",
+                                                  description="Train a backbone with Mono-HDR or a baseline.")
+    backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
+    trainer = build_trainer(config, backbone_name)
+    metrics = trainer.train()
+    print_metrics(metrics, config.out / "metrics.json")
+
+
+def _scan_preset(argv: list[str]) -> str | None:
+    for index, arg in enumerate(argv):
+        if arg == "--preset" and index + 1 < len(argv):
+            return argv[index + 1]
+        if arg.startswith("--preset="):
+            return arg.split("=", 1)[1]
+    return None
+
+
+def command_eval(config: EvalConfig) -> None:
+    from mono_hdr_plugin.checkpoints import write_json  # noqa: PLC0415
+    from mono_hdr_plugin.train import load_trained  # noqa: PLC0415
+
+    trainer, _ = load_trained(config.checkpoint, data=config.data)
+    trainer.config.out = config.out
+    metrics = trainer.evaluate(save_renders=config.save_renders)
+    write_json(config.out / "metrics.json", metrics)
+    print_metrics(metrics, config.out / "metrics.json")
+
+
+def command_render(config: RenderConfig) -> None:
+    from mono_hdr_plugin.render import render_checkpoint  # noqa: PLC0415
+
+    written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
+    console.print(f"wrote {len(written)} images to {config.out}")
+
+
+def command_backbones(config: BackbonesConfig) -> None:
+    from mono_hdr_plugin.registry import available_backbones, broken_plugins  # noqa: PLC0415
+
+    table = Table(title="mono-hdr backbones")
+    for column in ("name", "class", "source", "loss", "rays per step"):
+        table.add_column(column)
+    for name, entry in available_backbones().items():
+        cls = entry.backbone_class
+        table.add_row(name, f"{cls.__module__}.{cls.__qualname__}", entry.source, cls.loss_kind,
+                      "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
+    for name, reason in broken_plugins().items():
+        table.add_row(f"[red]{name}", "[red]broken", reason, "", "")
+    console.print(table)
+
+
+def print_metrics(metrics: dict, path: Path) -> None:
+    table = Table(title=f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} ({metrics['steps']} steps, "
+                        f"{metrics['train_seconds']:.0f} s)")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr", "ldr_ssim"):
+        value = metrics.get(key)
+        table.add_row(key, "n/a (no HDR ground truth)" if value is None else f"{value:.4f}")
+    for exposure, value in metrics["ldr_psnr_per_exposure"].items():
+        table.add_row(f"ldr_psnr @ {exposure} s", f"{value:.4f}")
+    console.print(table)
+    console.print(f"metrics written to {path}")
+
+
+def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
+    """name -> (help line, runner taking the remaining argv)."""
+
+    def simple(config_class: type, function: Callable, prog: str) -> Callable[[list[str]], None]:
+        return lambda argv: function(tyro.cli(config_class, args=argv, prog=f"mono-hdr {prog}",
+                                              description=config_class.__doc__))
+
+    commands = {
+        "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
+        "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
+        "render": (RenderConfig.__doc__, simple(RenderConfig, command_render, "render")),
+        "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
+    }
+    for name, (config_class, function) in _optional_commands().items():
+        commands[name] = (config_class.__doc__, simple(config_class, function, name))
+    return commands
+
+
+def _optional_commands() -> dict[str, tuple[type, Callable]]:
+    """Commands contributed by the studio and benchmark modules."""
+    found = {}
+    try:
+        from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
+        found["scenes"] = (ScenesConfig, list_scenes_command)
+        found["synth"] = (SynthConfig, synth)
+    except ImportError:
+        pass
+    return found
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    commands = _commands()
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in commands:
+        console.print("usage: mono-hdr COMMAND [options]   (mono-hdr COMMAND --help for its options)\n")
+        for name, (help_line, _) in commands.items():
+            console.print(f"  [bold]{name:<12}[/bold] {help_line.strip().splitlines()[0]}")
+        if argv and argv[0] not in ("-h", "--help"):
+            console.print(f"\n[red]unknown command {argv[0]!r}")
+            raise SystemExit(2)
+        return
+    commands[argv[0]][1](argv[1:])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,50 @@
+"""Render a trained model's test views: linear HDR EXR plus LDR PNGs at chosen exposures."""
+
+from pathlib import Path
+
+import torch
+
+from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.metrics import normalise_hdr
+from mono_hdr_plugin.train import load_trained, render_full
+
+
+def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
+    """The sRGB transfer curve of linear values in [0, 1]."""
+    linear = linear.clamp(0.0, 1.0)
+    return torch.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+
+
+@torch.no_grad()
+def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] = (),
+                      max_views: int | None = None) -> list[Path]:
+    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view."""
+    trainer, _ = load_trained(checkpoint)
+    scene, method, backbone = trainer.scene, trainer.method, trainer.backbone
+    exposures = exposures or tuple(scene.train_exposures)
+    for exposure in exposures:
+        if not exposure > 0:
+            raise ValueError(f"--exposures must be positive seconds, got {exposure}")
+    reference_exposure = scene.train_exposures[0]
+    seen, written = set(), []
+    for view in scene.test:
+        if view.view_id in seen:
+            continue
+        seen.add(view.view_id)
+        if max_views is not None and len(seen) > max_views:
+            break
+        stem = view.name or f"view_{view.view_id:03d}"
+        base = render_full(backbone, method, view.camera, reference_exposure)
+        written += [out / f"{stem}_hdr.exr", out / f"{stem}_hdr_mulaw.png"]
+        write_exr(written[-2], base.hdr.float().numpy())
+        write_png(written[-1], normalise_hdr(base.hdr).numpy())
+        for exposure in exposures:
+            if method.renders_any_exposure:
+                ldr = render_full(backbone, method, view.camera, exposure).ldr
+            elif exposure in scene.train_exposures:
+                ldr = base.ldr
+            else:  # Mono-HDR learns LDR at its training exposure only: show the HDR render instead
+                ldr = srgb_encode(base.hdr * exposure / reference_exposure)
+            written.append(out / f"{stem}_ldr_{exposure:g}s.png")
+            write_png(written[-1], ldr.clamp(0, 1).numpy())
+    return written

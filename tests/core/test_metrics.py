@@ -1,0 +1,107 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from mono_hdr_plugin.losses import l1_dssim_loss, mse_loss, photometric_loss
+from mono_hdr_plugin.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair
+
+
+class TestPsnr:
+    def test_identical_is_inf(self):
+        image = torch.rand(8, 8, 3)
+        assert psnr(image, image) == math.inf
+
+    def test_hand_computed(self):
+        pred, target = torch.zeros(4, 4, 3), torch.full((4, 4, 3), 0.1)
+        assert psnr(pred, target) == pytest.approx(20.0)
+
+    def test_matches_skimage(self):
+        rng = np.random.default_rng(0)
+        a, b = rng.random((20, 24, 3)), rng.random((20, 24, 3))
+        expected = peak_signal_noise_ratio(b, a, data_range=1)
+        assert psnr(torch.from_numpy(a), torch.from_numpy(b)) == pytest.approx(expected, rel=1e-9)
+
+    def test_shape_mismatch_raises(self):
+        with pytest.raises(ValueError, match="shapes differ"):
+            psnr(torch.zeros(3, 3, 3), torch.zeros(3, 4, 3))
+
+
+class TestSsim:
+    @pytest.mark.parametrize("shape", [(32, 32, 3), (17, 40, 1), (11, 11, 3)])
+    def test_matches_skimage_3dgs_settings(self, shape):
+        rng = np.random.default_rng(1)
+        a = rng.random(shape)
+        b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
+        expected = structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+                                         data_range=1.0, channel_axis=-1)
+        got = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
+        assert got == pytest.approx(expected, abs=1e-10)
+
+    def test_identical_is_one(self):
+        image = torch.rand(16, 16, 3, dtype=torch.float64)
+        assert ssim(image, image).item() == pytest.approx(1.0)
+
+    def test_too_small_raises(self):
+        with pytest.raises(ValueError, match="at least 11"):
+            ssim_map(torch.rand(8, 8, 3), torch.rand(8, 8, 3))
+
+    def test_gradcheck(self):
+        a = torch.rand(12, 12, 1, dtype=torch.float64, requires_grad=True)
+        b = torch.rand(12, 12, 1, dtype=torch.float64)
+        assert torch.autograd.gradcheck(lambda x: ssim(x, b), (a,))
+
+
+class TestMuLaw:
+    def test_endpoints_and_monotone(self):
+        x = torch.tensor([0.0, 0.001, 0.5, 1.0])
+        y = mu_law(x)
+        assert y[0] == 0 and y[-1] == pytest.approx(1.0) and (y.diff() > 0).all()
+
+    def test_normalise_all_zero_stays_zero(self):
+        out = normalise_hdr(torch.zeros(4, 4, 3))
+        assert torch.equal(out, torch.zeros(4, 4, 3))
+
+    def test_normalise_is_scale_invariant(self):
+        hdr = torch.rand(5, 5, 3) * 10
+        torch.testing.assert_close(normalise_hdr(hdr), normalise_hdr(hdr * 1000))
+
+
+class TestHdrMetrics:
+    def test_own_max_ignores_scale_gt_max_does_not(self):
+        gt = torch.rand(16, 16, 3) * 50
+        scaled = gt * 0.25
+        metrics = hdr_metrics(scaled, gt)
+        assert metrics["hdr_psnr"] > 40  # only the GT's 8-bit quantisation differs
+        assert metrics["hdr_psnr_gt_max"] < metrics["hdr_psnr"] - 10
+
+    def test_gt_max_normalisation_by_ground_truth(self):
+        gt = torch.rand(12, 12, 3) + 1.0
+        pred, target = tone_mapped_pair(gt * 2, gt, "gt_max")
+        torch.testing.assert_close(target, mu_law(gt / gt.max()))
+        assert pred.max() == pytest.approx(1.0)  # clamped at the GT max
+
+    def test_own_max_quantises_ground_truth_to_8_bit(self):
+        gt = torch.rand(12, 12, 3) * 3
+        _, target = tone_mapped_pair(gt, gt, "own_max")
+        torch.testing.assert_close(target * 255, torch.round(target * 255))
+
+
+class TestLosses:
+    def test_l1_dssim_hand_computed(self):
+        pred, target = torch.zeros(12, 12, 3), torch.full((12, 12, 3), 0.5)
+        expected = 0.8 * 0.5 + 0.2 * (1 - ssim(pred, target))
+        assert l1_dssim_loss(pred, target).item() == pytest.approx(expected.item())
+
+    def test_mse(self):
+        assert mse_loss(torch.zeros(3), torch.full((3,), 2.0)).item() == pytest.approx(4.0)
+
+    def test_pixel_batches_fall_back_to_l1(self):
+        pred, target = torch.zeros(10, 3), torch.full((10, 3), 0.3)
+        assert photometric_loss(pred, target, "l1_dssim").item() == pytest.approx(0.3)
+
+    def test_zero_for_identical(self):
+        image = torch.rand(12, 12, 3)
+        assert photometric_loss(image, image, "l1_dssim").item() == pytest.approx(0.0, abs=1e-6)
