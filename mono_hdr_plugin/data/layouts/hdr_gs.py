@@ -1,0 +1,212 @@
+"""HDR-GS COLMAP layout (DATASETS.md section 3), read and written with pycolmap.
+
+    sparse/0/{cameras,images,points3D}.bin|.txt   COLMAP model, one image entry per view
+    images/ (or input_images/)                    <view>_<e>.<ext>, e = 0..4 (t1..t5)
+    exr/<view>.exr                                HDR ground truth (synthetic scenes)
+    exposures.json (optional)                     {image name: seconds}
+    poses_bounds_exps.npy (real scenes)           column 17 = exposure, row 5 (id - 1) + e
+
+Exposure of a photo: exposures.json if present, else the npy row, else the synthetic
+t1..t5 = 0.125, 0.5, 2, 8, 32 s that the official code hard-codes. With exposures.json
+(`mono-hdr process-data` output) a view is its own image entry plus any `<view>_<e>`
+siblings the JSON lists; photos can be at any exposure. Views are ordered by their numeric
+name (never string order): even views train, odd views test.
+"""
+
+import functools
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, Shot, bounds_from_cameras,
+                                           bounds_from_points)
+from mono_hdr_plugin.data.errors import DatasetError, missing
+from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_png
+from mono_hdr_plugin.data.layouts.common import (check_exposure, check_finite, check_one_size,
+                                                 image_size, load_json, natural_key,
+                                                 split_view_exposure, write_json)
+
+SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
+EXPOSURES_FILE = "exposures.json"
+POSES_FILE = "poses_bounds_exps.npy"
+MODEL_FOLDER = Path("sparse") / "0"
+MAX_EXPOSURES = 5
+
+
+def detect(folder: Path) -> bool:
+    return (folder / MODEL_FOLDER).is_dir()
+
+
+def _image_folder(folder: Path) -> Path:
+    for name in ("images", "input_images"):
+        if (folder / name).is_dir():
+            return folder / name
+    raise missing(folder / "images", "the HDR-GS layout keeps its photos in images/ or input_images/")
+
+
+def _read_model(folder: Path):
+    import pycolmap
+
+    model = folder / MODEL_FOLDER
+    if not any((model / f"images.{ext}").is_file() for ext in ("bin", "txt")):
+        raise missing(model / "images.bin", "run COLMAP (or mono-hdr process-data) to create sparse/0")
+    try:
+        return pycolmap.Reconstruction(str(model))
+    except Exception as error:  # noqa: BLE001 - pycolmap raises bare RuntimeError/ValueError
+        raise DatasetError(f"{model}: cannot read the COLMAP model ({error}); re-run COLMAP") from error
+
+
+def _camera(colmap_camera, pose, folder: Path, name: str) -> Camera:
+    model = colmap_camera.model.name
+    params = list(colmap_camera.params)
+    if model == "PINHOLE":
+        fx, fy, cx, cy = params
+    elif model == "SIMPLE_PINHOLE":
+        fx, cx, cy = params
+        fy = fx
+    else:
+        raise DatasetError(f"{folder / MODEL_FOLDER}: image {name} uses camera model {model}; only "
+                           "PINHOLE and SIMPLE_PINHOLE are supported: undistort the images "
+                           "(colmap image_undistorter)")
+    w2c = np.eye(4)
+    w2c[:3] = check_finite(pose.matrix(), folder / MODEL_FOLDER, f"the pose of {name}")
+    # COLMAP's pixel (0, 0) covers [0, 1]^2 with its centre at 0.5, the same as Camera's.
+    return Camera(c2w=torch.from_numpy(np.linalg.inv(w2c)).float(), fx=fx, fy=fy, cx=cx, cy=cy,
+                  width=colmap_camera.width, height=colmap_camera.height)
+
+
+def _cam_from_world(image):
+    pose = image.cam_from_world
+    return pose() if callable(pose) else pose  # a method since pycolmap 3.12, a property before
+
+
+class _ExposureSource:
+    """Looks up a photo's exposure: exposures.json, else the npy column, else t1..t5."""
+
+    def __init__(self, folder: Path):
+        self.json_path = folder / EXPOSURES_FILE
+        self.table = (load_json(self.json_path, "") if self.json_path.is_file() else None)
+        self.npy_path = folder / POSES_FILE
+        self.rows = np.load(self.npy_path) if self.table is None and self.npy_path.is_file() else None
+
+    def __call__(self, name: str, image_id: int, e: int) -> float:
+        if self.table is not None:
+            if name not in self.table:
+                raise DatasetError(f"{self.json_path}: no exposure for {name!r}; add it (seconds)")
+            return check_exposure(self.table[name], f"{self.json_path} [{name!r}]")
+        if self.rows is not None:
+            row = (image_id - 1) * MAX_EXPOSURES + e
+            if row >= len(self.rows) or self.rows.ndim != 2 or self.rows.shape[1] < 18:
+                raise DatasetError(f"{self.npy_path}: no row {row} for {name} (shape {self.rows.shape}); "
+                                   "the exposures are out of step with the COLMAP images: regenerate it")
+            return check_exposure(self.rows[row, 17], f"{self.npy_path} row {row} ({name})")
+        if e >= len(SYNTHETIC_EXPOSURES):
+            raise DatasetError(f"{name}: exposure index {e} has no default time; write {self.json_path.name}")
+        return SYNTHETIC_EXPOSURES[e]
+
+
+def _view_shots(images: Path, name: str, image_id: int, exposures: _ExposureSource) -> list[Shot]:
+    """The entry's own photo and its `<view>_<e>` siblings (those the exposure table knows)."""
+    parsed = split_view_exposure(name)
+    if parsed is None:
+        if exposures.table is None:
+            raise DatasetError(f"{images / name}: expected <view>_<exposure index>.<ext> (e.g. 0_0.png) "
+                               f"or an {EXPOSURES_FILE} giving each image's exposure; add one")
+        candidates = [(name, 0)]
+    else:
+        suffix = Path(name).suffix
+        candidates = [(f"{parsed[0]}_{e}{suffix}", e) for e in range(MAX_EXPOSURES)]
+        if exposures.table is not None:
+            candidates = [(n, e) for n, e in candidates if n == name or n in exposures.table]
+    shots = []
+    for sibling, e in candidates:
+        path = images / sibling
+        if not path.is_file():
+            if sibling == name or exposures.table is not None:
+                raise missing(path, f"restore the photo or remove it from sparse/0 and {EXPOSURES_FILE}")
+            continue
+        shots.append(Shot(exposures(sibling, image_id, e), functools.partial(read_image, path), sibling))
+    return sorted(shots, key=lambda shot: shot.exposure)
+
+
+def _points(model):
+    if not model.points3D:
+        return None, None
+    points = np.stack([p.xyz for p in model.points3D.values()])
+    colours = np.stack([p.color for p in model.points3D.values()]) / 255.0
+    if not np.isfinite(points).all():
+        return None, None
+    return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
+
+
+def read(folder: Path) -> CapturedScene:
+    """Every photo of an HDR-GS scene, with the COLMAP points for initialisation."""
+    model = _read_model(folder)
+    images = _image_folder(folder)
+    exposures = _ExposureSource(folder)
+    entries = sorted(model.images.items(), key=lambda item: natural_key(item[1].name))
+    if not entries:
+        raise DatasetError(f"{folder / MODEL_FOLDER}: the COLMAP model has no images; re-run COLMAP")
+    views, sizes = [], {}
+    for view_id, (image_id, image) in enumerate(entries):
+        shots = _view_shots(images, image.name, image_id, exposures)
+        sizes.update({images / s.name: image_size(images / s.name) for s in shots})
+        camera = _camera(model.cameras[image.camera_id], _cam_from_world(image), folder, image.name)
+        token = Path(image.name).stem.split("_")[0]
+        exr = folder / "exr" / f"{token}.exr"
+        views.append(CapturedView(view_id=view_id, camera=camera, split="train" if view_id % 2 == 0 else "test",
+                                  shots=shots, name=token,
+                                  hdr=functools.partial(read_exr, exr) if exr.is_file() else None))
+    width, height = check_one_size(sizes, images)
+    for view in views:
+        if (view.camera.width, view.camera.height) != (width, height):
+            raise DatasetError(f"{folder / MODEL_FOLDER}: camera of {view.shots[0].name} is "
+                               f"{view.camera.width}x{view.camera.height} but the photos are {width}x{height}; "
+                               "re-run COLMAP on these images or resize them")
+    points, colours = _points(model)
+    bounds = bounds_from_points(points.numpy()) if points is not None else \
+        bounds_from_cameras([v.camera for v in views])
+    return CapturedScene(name=folder.name, views=views, bounds_min=bounds[0], bounds_max=bounds[1],
+                         points=points, point_colors=colours,
+                         metadata={"source": str(folder), "layout": "hdr-gs"})
+
+
+def _write_model(scene: CapturedScene, model_folder: Path) -> None:
+    import pycolmap
+
+    reconstruction = pycolmap.Reconstruction()
+    camera = scene.views[0].camera
+    reconstruction.add_camera_with_trivial_rig(pycolmap.Camera(
+        model="PINHOLE", width=camera.width, height=camera.height, camera_id=1,
+        params=[camera.fx, camera.fy, camera.cx, camera.cy]))
+    for index, view in enumerate(scene.views):
+        w2c = view.camera.w2c.double().numpy()
+        image = pycolmap.Image(name=f"{index:03d}_0.png", camera_id=1, image_id=index + 1)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
+        reconstruction.add_image_with_trivial_frame(image, pose)
+    if scene.points is not None:
+        colours = (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+        for xyz, rgb in zip(scene.points.double().numpy(), colours):
+            reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
+    model_folder.mkdir(parents=True, exist_ok=True)
+    reconstruction.write(str(model_folder))
+
+
+def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
+    """Write images/<view:03d>_<e>.png, exr/<view:03d>.exr, sparse/0 and exposures.json.
+
+    Zero-padded view names make even the official string-sorting loader split correctly.
+    """
+    folder = Path(folder)
+    exposures = {}
+    for index, view in enumerate(scene.views):
+        if view.hdr is not None:
+            write_exr(folder / "exr" / f"{index:03d}.exr", view.hdr())
+        for e, shot in enumerate(view.shots):
+            name = f"{index:03d}_{e}.png"
+            write_png(folder / "images" / name, shot.image(), bits=bits)
+            exposures[name] = shot.exposure
+    write_json(folder / EXPOSURES_FILE, exposures)
+    _write_model(scene, folder / MODEL_FOLDER)
