@@ -117,7 +117,7 @@ BUILTIN_SCENES = (
     StudioScene(
         name="demo", description="small fast scene: checkered floor and wall, three objects, a bulb",
         content=demo_content, rig=CameraRig(target=(0.0, 0.3, 0.5), radius=3.6, fov_deg=50, **FORWARD_ARC),
-        resolution=(64, 64), spp=16, max_depth=4,
+        resolution=(64, 64), spp=32, max_depth=3,
         effects=("exposure", "crf", "clip", "quantize")),
     StudioScene(
         name="lamp-room", description="room lit by one visible floor-lamp bulb",

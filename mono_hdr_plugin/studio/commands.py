@@ -1,0 +1,76 @@
+"""`mono-hdr synth` and `mono-hdr scenes`: configs and functions the CLI wires in."""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from mono_hdr_plugin.studio.render import dynamic_range, render_scene
+from mono_hdr_plugin.studio.scene import StudioScene
+from mono_hdr_plugin.studio.scenes import SCENES
+
+LAYOUT_NAMES = {"hdr-nerf": "hdr-nerf-synthetic", "hdr-gs": "hdr-gs"}
+
+
+@dataclass
+class SynthConfig:
+    """Write a built-in studio scene to disk in a published dataset layout."""
+
+    scene: str = "demo"
+    """Built-in scene to write (see `mono-hdr scenes`)."""
+    out: Path = Path("outputs/synth")
+    """Folder to write the dataset into (created if missing)."""
+    layout: Literal["hdr-nerf", "hdr-gs"] = "hdr-gs"
+    """hdr-nerf: transforms/exposure JSON + PNGs + EXR (HDR-NeRF synthetic); hdr-gs: images/, exr/,
+    COLMAP sparse/0 and exposures.json."""
+    seed: int = 0
+    """Seed of the simulated sensor noise."""
+
+
+@dataclass
+class ScenesConfig:
+    """List the built-in studio scenes."""
+
+    render: bool = True
+    """Measure the dynamic range from the (cached) renders; False lists without rendering."""
+
+
+def png_bits(scene: StudioScene) -> int:
+    """8-bit PNGs hold an 8-bit capture exactly; deeper captures (or none) need 16 bits."""
+    return 8 if "quantize" in scene.effects and scene.capture.bits == 8 else 16
+
+
+def synth(config: SynthConfig) -> Path:
+    """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
+    from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
+
+    scene = get_scene(config.scene)
+    write_layout(studio_captured_scene(scene, seed=config.seed), config.out, LAYOUT_NAMES[config.layout],
+                 bits=png_bits(scene))
+    return config.out
+
+
+def list_scenes(render: bool = True) -> list[dict]:
+    """One row per scene: name, resolution, views, spp, dynamic range (None unless rendered), effects."""
+    rows = []
+    for scene in SCENES.values():
+        rows.append({"name": scene.name, "resolution": f"{scene.width}x{scene.height}",
+                     "views": scene.rig.views, "spp": scene.spp, "description": scene.description,
+                     "dynamic_range": dynamic_range(render_scene(scene).radiance) if render else None,
+                     "effects": scene.effects})
+    return rows
+
+
+def list_scenes_command(config: ScenesConfig) -> None:
+    """Print the built-in scenes as a table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="Built-in studio scenes")
+    for column in ("name", "resolution", "views", "spp", "dynamic range", "capture effects", "description"):
+        table.add_column(column)
+    for row in list_scenes(config.render):
+        ratio = "not rendered" if row["dynamic_range"] is None else f"{row['dynamic_range']:.2g} : 1"
+        table.add_row(row["name"], row["resolution"], str(row["views"]), str(row["spp"]), ratio,
+                      ", ".join(row["effects"]), row["description"])
+    Console().print(table)

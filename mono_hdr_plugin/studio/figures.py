@@ -1,0 +1,50 @@
+"""README figures: one studio view at three exposures and its HDR tone-mapped.
+
+    python -m mono_hdr_plugin.studio.figures [scene] [out_folder]
+
+writes docs/studio_<scene>_t1.png, _t3.png, _t5.png and _hdr.png.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mono_hdr_plugin.data.io import write_png
+from mono_hdr_plugin.studio.capture import capture
+from mono_hdr_plugin.studio.dataset import get_scene
+from mono_hdr_plugin.studio.render import render_scene
+
+MU = 5000.0
+
+
+def mu_law_tonemap(hdr: np.ndarray) -> np.ndarray:
+    """The HDR metric's tone map: mu-law (mu = 5000) of the image divided by its maximum."""
+    normalised = np.clip(hdr / max(float(hdr.max()), 1e-12), 0.0, 1.0)
+    return np.log1p(MU * normalised) / np.log1p(MU)
+
+
+def upscale(image: np.ndarray, factor: int) -> np.ndarray:
+    """Nearest-neighbour enlargement, so small renders stay crisp in the README."""
+    return image.repeat(factor, axis=0).repeat(factor, axis=1)
+
+
+def write_figures(scene_name: str = "demo", out: Path = Path("docs"), view: int = 0,
+                  factor: int = 4) -> list[Path]:
+    """Write the figures and return their paths."""
+    scene = get_scene(scene_name)
+    radiance = render_scene(scene).radiance[view]
+    paths = []
+    for label, index in (("t1", 0), ("t3", 2), ("t5", 4)):
+        photo = capture(radiance, scene.exposures[index], scene.effects, scene.capture)
+        paths.append(out / f"studio_{scene_name}_{label}.png")
+        write_png(paths[-1], upscale(photo, factor))
+    paths.append(out / f"studio_{scene_name}_hdr.png")
+    write_png(paths[-1], upscale(mu_law_tonemap(radiance), factor))
+    return paths
+
+
+if __name__ == "__main__":
+    arguments = sys.argv[1:]
+    for path in write_figures(*(arguments[:1] or ["demo"]), *[Path(a) for a in arguments[1:2]]):
+        print(path)
