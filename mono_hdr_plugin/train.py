@@ -79,7 +79,7 @@ def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
     if hdr == 0:
         return [False] * num_views
     fraction = 1.0 if ldr <= hdr else hdr / ldr
-    count = max(1, round(fraction * num_views))
+    count = max(1, math.ceil(fraction * num_views))
     chosen = {int(i * num_views / count) for i in range(count)}
     return [i in chosen for i in range(num_views)]
 

@@ -1,0 +1,126 @@
+"""The training loop end to end with the example voxel-grid backbone (tiny, seconds)."""
+
+import json
+import math
+
+import pytest
+import torch
+
+import register_backbone  # examples/, put on sys.path by conftest
+from mono_hdr_plugin.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.train import Trainer, hdr_supervised_views, load_trained, parse_view_ratio, train_config_for
+
+
+def make_config(tmp_path, backbone_config, **overrides):
+    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
+                                                     save_renders=False, checkpoint_every=10**9)
+    for key, value in overrides.items():
+        if hasattr(config.hdr, key):
+            setattr(config.hdr, key, value)
+        else:
+            setattr(config, key, value)
+    return config
+
+
+class TestHdrViewRatio:
+    @pytest.mark.parametrize("ratio,count", [("1:1", 9), ("2:1", 5), ("3:1", 3), ("5:1", 2), ("1:0", 0), ("0:1", 9)])
+    def test_counts(self, ratio, count):
+        assert sum(hdr_supervised_views(9, ratio)) == count
+
+    @pytest.mark.parametrize("bad", ["2", "a:b", "0:0", "-1:1"])
+    def test_bad_ratio_names_the_flag(self, bad):
+        with pytest.raises(ValueError, match="--hdr-view-ratio"):
+            parse_view_ratio(bad)
+
+
+class TestTwoStepsOfEveryMethod:
+    @pytest.mark.parametrize("method", METHODS)
+    def test_two_steps(self, tmp_path, voxel_scene, voxel_backbone_config, method):
+        trainer = Trainer(make_config(tmp_path, voxel_backbone_config, method=method, max_steps=2), "voxel-grid",
+                          voxel_scene)
+        before = [p.detach().clone() for p in trainer.backbone.parameters()]
+        records = [trainer.train_step() for _ in range(2)]
+        assert all(math.isfinite(r["loss"]) and not r["skipped"] for r in records)
+        assert any(not torch.equal(a, b) for a, b in zip(before, trainer.backbone.parameters()))
+
+    def test_converters_are_optimised(self, tmp_path, voxel_scene, voxel_backbone_config):
+        trainer = Trainer(make_config(tmp_path, voxel_backbone_config), "voxel-grid", voxel_scene)
+        optimised = {id(p) for g in trainer.optimizer.param_groups for p in g["params"]}
+        assert all(id(p) in optimised for p in trainer.method.h2l.parameters())
+        assert all(id(p) in optimised for p in trainer.method.l2h.parameters())
+
+
+class TestCheckpoints:
+    def test_resume_gives_same_next_loss(self, tmp_path, voxel_scene, voxel_backbone_config):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=6)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        for _ in range(3):
+            trainer.train_step()
+        trainer.save()
+        expected = trainer.train_step()["loss"]
+        resumed = Trainer(config, "voxel-grid", voxel_scene)
+        resumed.restore(load_checkpoint(trainer.checkpoint_path()))
+        assert resumed.step == 3
+        assert resumed.train_step()["loss"] == pytest.approx(expected, rel=1e-6)
+
+    def test_other_version_is_refused_with_clear_error(self, tmp_path):
+        path = tmp_path / "old.pt"
+        save_checkpoint(path, {"step": 1})
+        payload = torch.load(path, weights_only=True)
+        payload["format_version"] = 99
+        torch.save(payload, path)
+        with pytest.raises(CheckpointError, match="format version 99"):
+            load_checkpoint(path)
+
+    def test_missing_and_truncated(self, tmp_path):
+        with pytest.raises(CheckpointError, match="does not exist"):
+            load_checkpoint(tmp_path / "nope.pt")
+        path = tmp_path / "cut.pt"
+        save_checkpoint(path, {"step": 1, "weights": torch.zeros(1000)})
+        path.write_bytes(path.read_bytes()[:200])
+        with pytest.raises(CheckpointError, match="cannot be read"):
+            load_checkpoint(path)
+
+    def test_no_temporary_files_left(self, tmp_path):
+        save_checkpoint(tmp_path / "a.pt", {"step": 1})
+        assert [p.name for p in tmp_path.iterdir()] == ["a.pt"]
+
+
+class TestNanGuard:
+    def test_bad_step_skipped_then_training_stops(self, tmp_path, voxel_scene, voxel_backbone_config, monkeypatch):
+        from mono_hdr_plugin.train import TrainingDiverged
+
+        trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=50, nan_patience=3), "voxel-grid",
+                          voxel_scene)
+        trainer.save()
+        good = [p.detach().clone() for p in trainer.backbone.parameters()]
+        original = trainer.method.losses
+        monkeypatch.setattr(trainer.method, "losses",
+                            lambda *a: {k: v * float("nan") for k, v in original(*a).items()})
+        with pytest.raises(TrainingDiverged, match="3 consecutive steps.*latest.pt"):
+            trainer.train()
+        assert all(torch.equal(a, b) for a, b in zip(good, trainer.backbone.parameters()))
+
+
+class TestEndToEnd:
+    def test_example_backbone_hdr_error_drops(self, tmp_path, voxel_scene, voxel_backbone_config):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=150)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        before = trainer.evaluate()
+        after = trainer.train()
+        assert after["hdr_psnr"] > before["hdr_psnr"] + 3.0
+        assert after["ldr_psnr"] > before["ldr_psnr"] + 3.0
+        written = json.loads((config.out / "metrics.json").read_text())
+        for key in ("hdr_psnr", "hdr_ssim", "ldr_psnr", "ldr_ssim", "ldr_psnr_per_exposure", "train_seconds",
+                    "steps", "backbone", "method"):
+            assert key in written
+        assert written["steps"] == 150 and written["backbone"] == "voxel-grid"
+
+    def test_load_trained_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=5)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        metrics = trainer.train()
+        restored, _ = load_trained(trainer.checkpoint_path(), scene=voxel_scene)
+        assert restored.step == 5
+        assert restored.evaluate()["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
