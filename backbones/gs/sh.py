@@ -1,0 +1,66 @@
+"""Real spherical harmonics up to degree 3, in the 3DGS basis and coefficient order."""
+
+import torch
+from torch import Tensor
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
+         0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+def num_sh_bases(degree: int) -> int:
+    """Number of coefficients per channel for SH `degree` (1, 4, 9 or 16)."""
+    if degree not in (0, 1, 2, 3):
+        raise ValueError(f"SH degree must be 0, 1, 2 or 3, got {degree}")
+    return (degree + 1) ** 2
+
+
+def rgb_to_sh(rgb: Tensor) -> Tensor:
+    """DC coefficient [..., 3] whose evaluation (+0.5) gives colour `rgb` [..., 3]."""
+    return (rgb - 0.5) / SH_C0
+
+
+def sh_to_rgb(dc: Tensor) -> Tensor:
+    """Inverse of rgb_to_sh: DC coefficient [..., 3] -> colour [..., 3]."""
+    return dc * SH_C0 + 0.5
+
+
+def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
+    """Evaluate SH of `degree` in unit directions.
+
+    coeffs: [N, K, C] with K >= (degree + 1)^2 (extra coefficients are ignored).
+    dirs: [N, 3] unit view directions (camera centre -> Gaussian mean).
+    Returns [N, C], without the +0.5 offset 3DGS adds afterwards.
+    """
+    needed = num_sh_bases(degree)
+    if coeffs.shape[-2] < needed:
+        raise ValueError(f"coeffs has {coeffs.shape[-2]} SH bases, degree {degree} needs {needed}")
+    result = SH_C0 * coeffs[:, 0]
+    if degree == 0:
+        return result
+    x, y, z = dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3]
+    result = result - SH_C1 * y * coeffs[:, 1] + SH_C1 * z * coeffs[:, 2] - SH_C1 * x * coeffs[:, 3]
+    if degree == 1:
+        return result
+    xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+    result = (result + SH_C2[0] * xy * coeffs[:, 4] + SH_C2[1] * yz * coeffs[:, 5]
+              + SH_C2[2] * (2.0 * zz - xx - yy) * coeffs[:, 6] + SH_C2[3] * xz * coeffs[:, 7]
+              + SH_C2[4] * (xx - yy) * coeffs[:, 8])
+    if degree == 2:
+        return result
+    return (result + SH_C3[0] * y * (3.0 * xx - yy) * coeffs[:, 9]
+            + SH_C3[1] * xy * z * coeffs[:, 10]
+            + SH_C3[2] * y * (4.0 * zz - xx - yy) * coeffs[:, 11]
+            + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * coeffs[:, 12]
+            + SH_C3[4] * x * (4.0 * zz - xx - yy) * coeffs[:, 13]
+            + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
+            + SH_C3[6] * x * (xx - 3.0 * yy) * coeffs[:, 15])
+
+
+def view_directions(means: Tensor, camera_center: Tensor) -> Tensor:
+    """Unit directions [N, 3] from `camera_center` [3] to `means` [N, 3] (zero-safe)."""
+    offset = means - camera_center.to(means)
+    return offset / offset.norm(dim=-1, keepdim=True).clamp_min(1e-12)
