@@ -1,0 +1,150 @@
+"""Studio scenes: registry, rendering and its cache, cameras that match Mitsuba's, datasets."""
+
+from dataclasses import replace
+from unittest import mock
+
+import numpy as np
+import pytest
+import torch
+
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.loading import load_scene, scene_names, to_scene_data
+from mono_hdr_plugin.studio import render as render_module
+from mono_hdr_plugin.studio.commands import ScenesConfig, list_scenes, list_scenes_command
+from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
+from mono_hdr_plugin.studio.render import dynamic_range, render_key, render_scene
+from mono_hdr_plugin.studio.scene import STUDIO_EXPOSURES, CameraRig, StudioScene, lamp
+from mono_hdr_plugin.studio.scenes import SCENES
+
+
+class TestRegistry:
+    def test_at_least_five_scenes_with_demo(self):
+        assert len(SCENES) >= 5 and "demo" in SCENES
+        assert scene_names() == list(SCENES)
+
+    @pytest.mark.parametrize("name", sorted(SCENES))
+    def test_scene_declares_cameras_and_effects(self, name):
+        scene = SCENES[name]
+        cameras = scene.cameras()
+        assert len(cameras) == 35 and cameras[0].width == scene.width
+        assert "exposure" in scene.effects and scene.exposures == STUDIO_EXPOSURES
+        assert [scene.split(i) for i in range(4)] == ["train", "test", "train", "test"]
+
+    def test_demo_is_small(self):
+        assert SCENES["demo"].width * SCENES["demo"].height <= 96 * 96
+
+    def test_unknown_scene(self):
+        with pytest.raises(DatasetError, match="unknown scene 'nope'.*mono-hdr scenes"):
+            get_scene("nope")
+
+    def test_listing_without_render(self):
+        rows = list_scenes(render=False)
+        assert {row["name"] for row in rows} == set(SCENES)
+        assert all(row["dynamic_range"] is None and row["effects"] for row in rows)
+
+    def test_table_prints(self, capsys, monkeypatch):
+        monkeypatch.setenv("COLUMNS", "200")
+        with mock.patch("mono_hdr_plugin.studio.commands.list_scenes", return_value=[
+                {"name": "demo", "resolution": "64x64", "views": 35, "spp": 32, "description": "d",
+                 "dynamic_range": 12345.0, "effects": ("exposure", "crf")}]):
+            list_scenes_command(ScenesConfig())
+        out = capsys.readouterr().out
+        assert "demo" in out and "1.2e+04" in out and "exposure, crf" in out
+
+
+class TestRenderCache:
+    def test_second_render_comes_from_the_cache(self, tiny_demo, studio_cache):
+        first = render_scene(tiny_demo)
+        with mock.patch.object(render_module, "_render_view", side_effect=AssertionError("rendered again")):
+            second = render_scene(tiny_demo)
+        assert np.array_equal(first.radiance, second.radiance)
+        assert len(list((studio_cache / "studio").glob("demo-*.npz"))) == 1
+
+    def test_key_changes_with_definition(self, tiny_demo):
+        keys = {render_key(tiny_demo), render_key(replace(tiny_demo, spp=8)),
+                render_key(replace(tiny_demo, resolution=(24, 20))),
+                render_key(replace(tiny_demo, content=lambda: {**tiny_demo.content(), "extra": lamp((0, 0, 3), 0.1, (1, 1, 1))}))}
+        assert len(keys) == 4
+
+    def test_render_is_hdr_and_finite(self, tiny_demo):
+        render = render_scene(tiny_demo)
+        assert render.radiance.shape == (10, 24, 24, 3) and np.isfinite(render.radiance).all()
+        assert render.hit.mean() > 0.5
+        assert dynamic_range(render.radiance) > 1e3  # a bulb in view, even at 4 spp
+
+
+class TestCameraMatchesMitsuba:
+    def test_bright_point_lands_on_projected_pixel(self, studio_cache):
+        point = (0.3, 0.2, 0.4)
+        scene = StudioScene(name="dot", description="one small emitter", spp=4, resolution=(40, 30),
+                            content=lambda: {"dot": lamp(point, 0.03, (100.0, 100.0, 100.0))},
+                            rig=CameraRig(target=(0.0, 0.0, 0.0), radius=3.0, views=3, fov_deg=40))
+        render = render_scene(scene, use_cache=False)
+        for camera, image in zip(scene.cameras(), render.radiance):
+            pixel, depth = camera.project(torch.tensor([point]))
+            row, col = np.unravel_index(image.sum(-1).argmax(), image.shape[:2])
+            assert depth.item() > 0
+            assert abs(col + 0.5 - pixel[0, 0].item()) <= 1.0 and abs(row + 0.5 - pixel[0, 1].item()) <= 1.0
+
+
+class TestStudioDataset:
+    def test_single_protocol(self, tiny_demo):
+        captured = studio_captured_scene(tiny_demo)
+        for index, exposure in enumerate((0.125, 2.0, 32.0)):
+            data = to_scene_data(captured, DataConfig(scene="demo", exposure_index=index))
+            assert len(data.train) == 5 and len(data.test) == 5
+            assert data.train_exposures == [exposure] and data.test_exposures == [exposure]
+        assert data.train[0].hdr is not None and data.train[0].image.max() <= 1
+
+    def test_multi_protocol_seeded(self, tiny_demo):
+        captured = studio_captured_scene(tiny_demo)
+        pick = lambda seed: [v.exposure for v in to_scene_data(captured, DataConfig(protocol="multi", seed=seed)).train]
+        assert pick(0) == pick(0) and set(pick(0)) <= {0.125, 2.0, 32.0}
+        assert any(pick(0) != pick(seed) for seed in range(1, 5))
+        data = to_scene_data(captured, DataConfig(protocol="multi"))
+        assert len(data.test) == 5 * 5 and data.test_exposures == list(STUDIO_EXPOSURES)
+
+    def test_fixed_protocol(self, tiny_demo):
+        data = to_scene_data(studio_captured_scene(tiny_demo), DataConfig(protocol="fixed", fixed_exposure=0.5))
+        assert data.train_exposures == [0.5] == data.test_exposures
+        with pytest.raises(DatasetError, match="no photo at 3.0 s"):
+            to_scene_data(studio_captured_scene(tiny_demo), DataConfig(protocol="fixed", fixed_exposure=3.0))
+
+    def test_longer_exposure_is_brighter_and_photos_are_quantised(self, tiny_demo):
+        views = studio_captured_scene(tiny_demo).views[0].shots
+        means = [shot.image().mean() for shot in views]
+        assert means == sorted(means)
+        levels = views[2].image() * 255
+        assert np.allclose(levels, np.round(levels), atol=1e-3)
+
+    def test_points_and_bounds(self, tiny_demo):
+        captured = studio_captured_scene(tiny_demo)
+        assert captured.points.shape[1] == 3 and captured.points.shape == captured.point_colors.shape
+        inside = (captured.points >= captured.bounds_min) & (captured.points <= captured.bounds_max)
+        assert inside.all()
+        camera = captured.views[0].camera
+        assert 0 < camera.near < camera.far < 100
+
+    def test_downscale(self, tiny_demo):
+        data = to_scene_data(studio_captured_scene(tiny_demo), DataConfig(downscale=2))
+        assert data.train[0].image.shape == (12, 12, 3) and data.train[0].camera.width == 12
+
+    def test_load_scene_needs_a_source(self):
+        with pytest.raises(DatasetError, match="--data FOLDER or --scene NAME"):
+            load_scene(DataConfig())
+
+    def test_bad_exposure_index(self, tiny_demo):
+        with pytest.raises(DatasetError, match="--exposure-index must be 0, 1 or 2"):
+            to_scene_data(studio_captured_scene(tiny_demo), DataConfig(exposure_index=4))
+
+
+@pytest.mark.slow
+class TestBuiltinScenesFull:
+    @pytest.mark.parametrize("name", sorted(SCENES))
+    def test_dynamic_range_at_least_1e4(self, name):
+        assert dynamic_range(render_scene(SCENES[name]).radiance) >= 1e4
+
+    def test_demo_loads_through_load_scene(self):
+        data = load_scene(DataConfig(scene="demo"))
+        assert len(data.train) == 18 and len(data.test) == 17 and data.points is not None
