@@ -134,8 +134,9 @@ def _view_shots(images: Path, name: str, image_id: int, exposures: _ExposureSour
 def _points(model):
     if not model.points3D:
         return None, None
-    points = np.stack([p.xyz for p in model.points3D.values()])
-    colours = np.stack([p.color for p in model.points3D.values()]) / 255.0
+    entries = [point for _, point in sorted(model.points3D.items())]
+    points = np.stack([point.xyz for point in entries])
+    colours = np.stack([point.color for point in entries]) / 255.0
     if not np.isfinite(points).all():
         return None, None
     return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
