@@ -11,7 +11,7 @@ from mono_hdr_plugin.cameras import Camera, OPENGL_TO_OPENCV, look_at
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError, MissingFileError
-from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.data.layouts import LAYOUTS, detect_layout, read_layout, write_layout
 from mono_hdr_plugin.data.layouts.common import natural_key
 from mono_hdr_plugin.data.layouts.hdr_nerf_real import llff_to_opencv, opencv_to_llff

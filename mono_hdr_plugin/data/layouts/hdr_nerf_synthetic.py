@@ -11,7 +11,6 @@ import functools
 import math
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from mono_hdr_plugin.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
