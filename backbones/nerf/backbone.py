@@ -88,6 +88,12 @@ class NerfBackbone(Backbone):
         if self.config.field == "fast" and step % fast.density_grid_update_every == 0:
             self.density_grid.update(self.grid_field.density, fast.density_grid_decay)
 
+    @property
+    def stochastic_sampling(self) -> bool:
+        """Jitter samples only while training with gradients: evaluation, even in train mode
+        under torch.no_grad, renders deterministically, so chunked and whole renders agree."""
+        return self.training and torch.is_grad_enabled()
+
     def normalise(self, points: Tensor) -> Tensor:
         """World points [..., 3] -> the field's frame, where the box's longest side spans [-1, 1]."""
         return (points - self.scene_center.to(points)) / self.scene_scale
@@ -96,7 +102,8 @@ class NerfBackbone(Backbone):
         """Per-sample LDR colours of the camera's rays and their compositing closure.
 
         Returns LdrFeatures with colors, raw_colors [N_rays, S, 3] (N_rays = prod(output_shape)),
-        composite: [N_rays, S, C] -> [*camera.output_shape, C], extras "weights" [N_rays, S],
+        composite: [N_rays, S, C] -> [*camera.output_shape, C], extras "weights" and
+        "sample_distances" (t along the unit ray) [N_rays, S],
         "depth" (expected distance, 0 where empty) and "alpha" (accumulation) [*output_shape],
         and for field=paper auxiliary = [the coarse network's LdrFeatures].
         """
@@ -104,14 +111,13 @@ class NerfBackbone(Backbone):
         device = self.bounds_min.device
         origins, directions = origins.reshape(-1, 3).to(device), directions.reshape(-1, 3).to(device)
         output_shape = camera.output_shape
-        if self.config.field == "paper":
-            return self._render_paper(origins, directions, camera, output_shape)
-        return self._render_fast(origins, directions, camera, output_shape)
+        render = self._render_paper if self.config.field == "paper" else self._render_fast
+        return render(origins, directions, camera, output_shape, self.stochastic_sampling)
 
     def _features(self, density: Tensor, raw_color: Tensor, t: Tensor, t_far: Tensor,
                   output_shape: tuple[int, ...]) -> LdrFeatures:
         weights = compositing_weights(density, sample_deltas(t, t_far) / self.scene_scale)
-        extras = {"weights": weights,
+        extras = {"weights": weights, "sample_distances": t,
                   "depth": (weights * t).sum(dim=-1).reshape(output_shape),
                   "alpha": weights.sum(dim=-1).reshape(output_shape)}
         return LdrFeatures(colors=torch.sigmoid(raw_color), raw_colors=raw_color,
@@ -126,18 +132,18 @@ class NerfBackbone(Backbone):
         return density.reshape(rays, samples), raw_color.reshape(rays, samples, 3)
 
     def _render_paper(self, origins: Tensor, directions: Tensor, camera: Camera,
-                      output_shape: tuple[int, ...]) -> LdrFeatures:
+                      output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
         paper = self.config.paper
         bounds = (self.bounds_min, self.bounds_max) if paper.clip_to_bounds else None
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, bounds)
-        t_coarse = sample_stratified(t_near, t_far, paper.coarse_samples, perturb=self.training)
+        t_coarse = sample_stratified(t_near, t_far, paper.coarse_samples, perturb=stochastic)
         coarse = self._features(*self._query(self.coarse_field, origins, directions, t_coarse),
                                 t_coarse, t_far, output_shape)
         # NeRF's importance sampling: bins between coarse samples, interior weights, no gradient.
         with torch.no_grad():
             mids = 0.5 * (t_coarse[:, 1:] + t_coarse[:, :-1])
             t_importance = sample_pdf(mids, coarse.extras["weights"][:, 1:-1].detach(), paper.fine_samples,
-                                      deterministic=not self.training)
+                                      deterministic=not stochastic)
             t_fine = torch.sort(torch.cat([t_coarse, t_importance], dim=-1), dim=-1).values
         fine = self._features(*self._query(self.fine_field, origins, directions, t_fine), t_fine, t_far,
                               output_shape)
@@ -145,20 +151,21 @@ class NerfBackbone(Backbone):
         return fine
 
     def _render_fast(self, origins: Tensor, directions: Tensor, camera: Camera,
-                     output_shape: tuple[int, ...]) -> LdrFeatures:
+                     output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
         fast = self.config.fast
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far,
                                      (self.bounds_min, self.bounds_max))
-        t_uniform = sample_stratified(t_near, t_far, fast.uniform_samples, perturb=self.training)
+        t_uniform = sample_stratified(t_near, t_far, fast.uniform_samples, perturb=stochastic)
         t = t_uniform
         if fast.importance_samples > 0:
             with torch.no_grad():
-                t_importance = self._proposal_samples(origins, directions, t_near, t_far)
+                t_importance = self._proposal_samples(origins, directions, t_near, t_far, stochastic)
             t = torch.sort(torch.cat([t_uniform, t_importance], dim=-1), dim=-1).values
         density, raw_color = self._query_occupied(origins, directions, t)
         return self._features(density, raw_color, t, t_far, output_shape)
 
-    def _proposal_samples(self, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor) -> Tensor:
+    def _proposal_samples(self, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor,
+                          stochastic: bool) -> Tensor:
         """Importance samples [N, importance_samples] from the density grid's rendering weights."""
         fast = self.config.fast
         edges = sample_stratified(t_near, t_far, fast.proposal_samples + 1, perturb=False)
@@ -166,7 +173,7 @@ class NerfBackbone(Backbone):
         positions = self.normalise(origins[:, None] + mids[..., None] * directions[:, None])
         cached = self.density_grid.lookup(positions.reshape(-1, 3)).reshape(mids.shape)
         weights = compositing_weights(cached, (edges[:, 1:] - edges[:, :-1]) / self.scene_scale)
-        return sample_pdf(edges, weights, fast.importance_samples, deterministic=not self.training)
+        return sample_pdf(edges, weights, fast.importance_samples, deterministic=not stochastic)
 
     def _query_occupied(self, origins: Tensor, directions: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Grid field at the samples in occupied cells; density 0 and raw colour 0 elsewhere."""
