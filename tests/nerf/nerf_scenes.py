@@ -10,7 +10,9 @@ def tiny_config(field: str, **overrides) -> NerfConfig:
     """A NerfConfig small enough for unit tests, with the same structure as the presets."""
     return NerfConfig(
         field=field,
-        paper=MlpFieldConfig(width=32, coarse_samples=8, fine_samples=8, rays_per_step=64),
+        # softplus: a 32-wide ReLU MLP can start with zero density everywhere (no gradient at all).
+        paper=MlpFieldConfig(width=32, coarse_samples=8, fine_samples=8, rays_per_step=64,
+                             density_activation="softplus"),
         fast=GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16,
                              uniform_samples=8, importance_samples=8, proposal_samples=16,
                              density_grid_resolution=8, rays_per_step=64),

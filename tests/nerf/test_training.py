@@ -1,0 +1,53 @@
+"""Two real training steps of every method with the NeRF backbone (both fields), via the lead's Trainer."""
+
+import math
+
+import pytest
+import torch
+
+from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.train import Trainer, render_full, train_config_for
+from nerf_scenes import tiny_config
+
+
+def nerf_trainer(tmp_path, scene, field: str, method: str) -> Trainer:
+    config = train_config_for(type(tiny_config(field)))(
+        backbone=tiny_config(field), out=tmp_path / "run", quiet=True, save_renders=False,
+        checkpoint_every=10**9, max_steps=2)
+    config.hdr.method = method
+    return Trainer(config, "nerf", scene)
+
+
+class TestTwoStepsOfEveryMethod:
+    @pytest.mark.parametrize("field", ["paper", "fast"])
+    @pytest.mark.parametrize("method", METHODS)
+    def test_two_steps(self, tmp_path, voxel_scene, field, method):
+        trainer = nerf_trainer(tmp_path, voxel_scene, field, method)
+        before = [p.detach().clone() for p in trainer.backbone.parameters()]
+        records = [trainer.train_step() for _ in range(2)]
+        assert all(math.isfinite(r["loss"]) and not r["skipped"] for r in records)
+        assert any(not torch.equal(a, b) for a, b in zip(before, trainer.backbone.parameters()))
+        if field == "paper" and records[0].get("ldr") is not None:
+            assert "ldr_aux0" in records[0]  # the coarse network is supervised too
+
+    def test_chunked_full_render_has_image_shape(self, tmp_path, voxel_scene):
+        trainer = nerf_trainer(tmp_path, voxel_scene, "fast", "mono")
+        trainer.backbone.render_chunk = 50
+        view = voxel_scene.test[0]
+        with torch.no_grad():
+            output = render_full(trainer.backbone, trainer.method, view.camera, view.exposure)
+        assert output.ldr.shape == output.hdr.shape == (view.camera.height, view.camera.width, 3)
+        assert torch.isfinite(output.hdr).all()
+
+
+class TestCheckpoint:
+    def test_resume_restores_density_grid_and_next_loss(self, tmp_path, voxel_scene):
+        trainer = nerf_trainer(tmp_path, voxel_scene, "fast", "mono")
+        for _ in range(2):
+            trainer.train_step()
+        trainer.save()
+        expected = trainer.train_step()["loss"]
+        resumed = nerf_trainer(tmp_path, voxel_scene, "fast", "mono")
+        resumed.restore(torch.load(trainer.checkpoint_path(), weights_only=True))
+        assert resumed.backbone.density_grid.filled
+        assert resumed.train_step()["loss"] == pytest.approx(expected, rel=1e-5)
