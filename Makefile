@@ -19,7 +19,7 @@ $(BIN)/mono-hdr: pyproject.toml
 install: $(BIN)/mono-hdr
 
 demo: install
-	$(BIN)/mono-hdr train gs --scene demo-cornell --max-steps 600 --out outputs/demo
+	$(BIN)/mono-hdr train gs --scene demo --max-steps 600 --out outputs/demo
 
 test: install
 	$(BIN)/python -m pytest -q

@@ -60,12 +60,18 @@ def command_train(argv: list[str]) -> None:
         config_class = entry.backbone_class.config_class
         backbone_defaults = config_class.preset(preset) if preset and hasattr(config_class, "preset") else config_class()
         defaults[name] = train_config_for(config_class)(backbone=backbone_defaults, preset=preset)
-    config = tyro.extras.subcommand_cli_from_dict(defaults, args=argv, prog="mono-hdr train",
-                                                  description="Train a backbone with Mono-HDR or a baseline.")
+    described = {name: (_first_line(backbones[name].backbone_class.__doc__), default)
+                 for name, default in defaults.items()}
+    config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
+                                                description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
     trainer = build_trainer(config, backbone_name)
     metrics = trainer.train()
     print_metrics(metrics, config.out / "metrics.json")
+
+
+def _first_line(text: str | None) -> str:
+    return (text or "").strip().splitlines()[0] if (text or "").strip() else ""
 
 
 def _scan_preset(argv: list[str]) -> str | None:
@@ -149,6 +155,11 @@ def _optional_commands() -> dict[str, tuple[type, Callable]]:
         from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
         found["scenes"] = (ScenesConfig, list_scenes_command)
         found["synth"] = (SynthConfig, synth)
+    except ImportError:
+        pass
+    try:
+        from mono_hdr_plugin.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
+        found["process-data"] = (ProcessDataConfig, process_data_command)
     except ImportError:
         pass
     return found

@@ -29,7 +29,7 @@ console = Console(stderr=True)
 class TrainConfig:
     """Train one backbone with one method; the backbone's own options follow."""
 
-    backbone: Annotated[Any, tyro.conf.OmitArgPrefixes]
+    backbone: Any
     data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DataConfig)
     hdr: Annotated[MethodConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=MethodConfig)
     preset: str | None = None
@@ -359,7 +359,7 @@ def train_config_for(backbone_config_class: type) -> type:
     if backbone_config_class not in _TRAIN_CONFIGS:
         _TRAIN_CONFIGS[backbone_config_class] = dataclass(type(
             f"Train{backbone_config_class.__name__}", (TrainConfig,), {
-                "__annotations__": {"backbone": Annotated[backbone_config_class, tyro.conf.OmitArgPrefixes]},
+                "__annotations__": {"backbone": backbone_config_class},
                 "backbone": field(default_factory=backbone_config_class),
                 "__doc__": TrainConfig.__doc__,
             }))

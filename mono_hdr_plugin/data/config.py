@@ -25,5 +25,5 @@ class DataConfig:
     """Exposure in seconds for the fixed protocol (must be one the data has)."""
     downscale: int = 1
     """Integer factor to shrink images by (area averaging), 2 reproduces the paper's half_res."""
-    seed: int = 0
-    """Seed for the random exposure choice of the multi protocol."""
+    exposure_seed: int = 0
+    """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""

@@ -26,7 +26,7 @@ def captured_scene(config: DataConfig) -> CapturedScene:
     if config.scene is not None:
         from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
 
-        return studio_captured_scene(get_scene(config.scene), seed=config.seed)
+        return studio_captured_scene(get_scene(config.scene), seed=config.exposure_seed)
     raise DatasetError("no scene given: pass --data FOLDER or --scene NAME "
                        f"(built-in scenes: {', '.join(scene_names())})")
 

@@ -45,7 +45,7 @@ def _single(scene: CapturedScene, config: DataConfig):
 
 def _multi(scene: CapturedScene, config: DataConfig):
     allowed = training_levels(scene.exposure_levels)
-    rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(config.exposure_seed)
     chosen = {}
     for view in scene.views:
         if view.split == "test":

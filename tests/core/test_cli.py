@@ -1,0 +1,72 @@
+"""The mono-hdr command line, driven as a user would (tiny runs of the example backbone)."""
+
+import json
+
+import pytest
+
+import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+from mono_hdr_plugin.cli import main
+
+
+class TestHelp:
+    def test_top_level_lists_commands(self, capsys):
+        main(["--help"])
+        out = capsys.readouterr().out
+        for command in ("train", "eval", "render", "backbones"):
+            assert command in out
+
+    def test_unknown_command_exits_2(self, capsys):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["bogus"])
+        assert exit_info.value.code == 2
+
+    @pytest.mark.parametrize("argv", [["train", "--help"], ["train", "voxel-grid", "--help"], ["eval", "--help"],
+                                      ["render", "--help"]])
+    def test_every_help_is_readable(self, argv, capsys):
+        with pytest.raises(SystemExit) as exit_info:
+            main(argv)
+        assert exit_info.value.code == 0
+        assert "usage" in capsys.readouterr().out.lower()
+
+    def test_train_help_shows_common_flags(self, capsys):
+        with pytest.raises(SystemExit):
+            main(["train", "voxel-grid", "--help"])
+        out = capsys.readouterr().out
+        for flag in ("--data", "--scene", "--method", "--max-steps", "--out", "--resume", "--seed"):
+            assert flag in out
+
+
+class TestBackbonesCommand:
+    def test_lists_example_with_source(self, capsys):
+        main(["backbones"])
+        out = capsys.readouterr().out
+        assert "voxel-grid" in out and "python" in out
+
+
+class TestTrainEvalRender:
+    def test_train_then_eval_then_render(self, tmp_path):
+        out = tmp_path / "run"
+        main(["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet",
+              "--max-eval-views", "2", "--backbone.resolution", "8", "--backbone.samples-per-ray", "8"])
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["steps"] == 3 and metrics["backbone"] == "voxel-grid" and metrics["method"] == "mono"
+        assert list(out.glob("renders/*_hdr.exr")) and list(out.glob("renders/*_ldr.png"))
+
+        checkpoint = out / "checkpoints" / "latest.pt"
+        main(["eval", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "eval"), "--no-save-renders"])
+        again = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+        assert again["ldr_psnr"] == pytest.approx(metrics["ldr_psnr"], rel=1e-5)
+
+        main(["render", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "render"), "--exposures", "0.5", "8",
+              "--max-views", "1"])
+        names = sorted(p.name for p in (tmp_path / "render").iterdir())
+        assert any(n.endswith("_hdr.exr") for n in names)
+        assert any(n.endswith("_ldr_0.5s.png") for n in names) and any(n.endswith("_ldr_8s.png") for n in names)
+
+    def test_resume_continues_from_checkpoint(self, tmp_path):
+        out = tmp_path / "run"
+        common = ["--scene", "demo", "--out", str(out), "--quiet", "--max-eval-views", "1", "--backbone.resolution",
+                  "8", "--backbone.samples-per-ray", "8", "--no-save-renders"]
+        main(["train", "voxel-grid", "--max-steps", "2", *common])
+        main(["train", "voxel-grid", "--max-steps", "4", "--resume", *common])
+        assert json.loads((out / "metrics.json").read_text())["steps"] == 4
