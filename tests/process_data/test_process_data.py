@@ -1,0 +1,352 @@
+"""`mono-hdr process-data`: photos -> HDR-GS dataset, checked against known cameras and exposures."""
+
+import json
+import math
+from dataclasses import replace
+from fractions import Fraction
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from mono_hdr_plugin.cli import main as cli_main
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.loading import load_scene
+from mono_hdr_plugin.process_data import (PhotoExif, PhotoRecord, ProcessDataConfig, assign_exposures,
+                                          check_one_camera, exposure_warnings, find_photos, load_photo,
+                                          process_data, read_exif, read_exposure_csv, relative_exposure)
+from process_data_photos import save_jpeg, shoot, textured_scene, umeyama
+
+ROTATION_LIMIT_DEG = 1.0
+POSITION_LIMIT = 0.01
+"""Of the scene size (the diagonal of the camera centres' bounding box)."""
+
+
+def camera_errors(out, cameras) -> tuple[float, float]:
+    """(max rotation error in degrees, max position error / scene size) after a similarity alignment."""
+    data = load_scene(DataConfig(data=out))
+    views = data.train + data.test
+    truth = [cameras[int(view.name.split("_")[0])] for view in views]
+    estimated = np.array([view.camera.center.double().numpy() for view in views])
+    known = np.array([camera.center.double().numpy() for camera in truth])
+    scale, rotation, translation = umeyama(estimated, known)
+    aligned = scale * estimated @ rotation.T + translation
+    position = np.linalg.norm(aligned - known, axis=1).max() / np.linalg.norm(known.max(0) - known.min(0))
+    angles = []
+    for view, camera in zip(views, truth):
+        relative = (rotation @ view.camera.c2w[:3, :3].double().numpy()).T @ camera.c2w[:3, :3].double().numpy()
+        angles.append(math.degrees(math.acos(np.clip((np.trace(relative) - 1) / 2, -1, 1))))
+    return max(angles), position
+
+
+def plain_photos(folder, count, size=(32, 24), **exif):
+    """`count` small random JPEGs: enough for the checks that run before structure from motion."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    return [save_jpeg(folder / f"p{index}.jpg", rng.random((size[1], size[0], 3)), **exif) for index in range(count)]
+
+
+@pytest.fixture(scope="module")
+def processed(small_shoot, tmp_path_factory):
+    """The small shoot through process-data with the default (distortion-estimating) camera model."""
+    out = tmp_path_factory.mktemp("processed") / "dataset"
+    return process_data(ProcessDataConfig(images=small_shoot.folder, out=out, num_threads=2)), out
+
+
+class TestProcessData:
+    def test_every_photo_placed(self, processed, small_shoot):
+        report, _ = processed
+        assert len(report.registered) == len(small_shoot.names) and report.failed == []
+        assert report.num_points > 100 and 0 < report.mean_reprojection_error < 1.0
+
+    def test_cameras_match_the_known_ones(self, processed, small_shoot):
+        rotation_error, position_error = camera_errors(processed[1], small_shoot.cameras)
+        assert rotation_error < ROTATION_LIMIT_DEG
+        assert position_error < POSITION_LIMIT
+
+    def test_undistorted_to_pinhole(self, processed):
+        report, out = processed
+        assert report.camera_model == "PINHOLE"
+        camera = load_scene(DataConfig(data=out)).train[0].camera
+        assert (camera.width, camera.height) == (report.width, report.height)
+
+    def test_exposures_read_back_exactly(self, processed, small_shoot):
+        _, out = processed
+        data = load_scene(DataConfig(data=out))
+        recorded = json.loads((out / "process_data.json").read_text())
+        by_dataset_name = {photo["name"]: photo["source"] for photo in recorded["photos"]}
+        truth = dict(zip(small_shoot.names, small_shoot.exposures))
+        for view in data.train + data.test:
+            assert view.exposure == truth[by_dataset_name[view.name]]
+        assert {photo.exposure_source for photo in processed[0].photos} == {"exif"}
+
+    def test_report_and_files(self, processed):
+        report, out = processed
+        assert report.exposure_range == (1 / 60, 1 / 15)
+        assert report.exposure_stops == pytest.approx(2.0)
+        assert report.warnings == []  # three exposures within 2 stops: nothing to warn about
+        assert sorted(p.name for p in (out / "images").iterdir()) == sorted(p.name for p in report.registered)
+        assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # scratch folder removed
+
+    def test_pinhole_model_is_kept(self, small_shoot, tmp_path):
+        report = process_data(ProcessDataConfig(images=small_shoot.folder, out=tmp_path / "d",
+                                                camera_model="SIMPLE_PINHOLE", num_threads=2))
+        assert report.camera_model == "SIMPLE_PINHOLE" and (report.width, report.height) == (192, 192)
+        rotation_error, position_error = camera_errors(tmp_path / "d", small_shoot.cameras)
+        assert rotation_error < ROTATION_LIMIT_DEG and position_error < POSITION_LIMIT
+
+    def test_downscale_scales_intrinsics(self, small_shoot, tmp_path, processed):
+        full = load_scene(DataConfig(data=processed[1])).train[0].camera
+        process_data(ProcessDataConfig(images=small_shoot.folder, out=tmp_path / "d", downscale=2, num_threads=2))
+        half = load_scene(DataConfig(data=tmp_path / "d")).train[0]
+        assert (half.camera.width, half.camera.height) == (full.width // 2, full.height // 2)
+        assert tuple(half.image.shape) == (full.height // 2, full.width // 2, 3)
+        assert half.camera.fx == pytest.approx(full.fx / 2, rel=0.02)
+        assert half.camera.cx == pytest.approx(full.cx / 2, rel=0.02)
+
+    def test_existing_out_needs_overwrite(self, processed, small_shoot):
+        _, out = processed
+        before = sorted(p.name for p in out.iterdir())
+        with pytest.raises(DatasetError, match="--overwrite"):
+            process_data(ProcessDataConfig(images=small_shoot.folder, out=out))
+        assert sorted(p.name for p in out.iterdir()) == before
+
+    def test_cli_prints_the_report(self, small_shoot, tmp_path, capsys):
+        cli_main(["process-data", "--images", str(small_shoot.folder), "--out", str(tmp_path / "d"),
+                  "--camera-model", "SIMPLE_PINHOLE", "--num-threads", "2"])
+        printed = capsys.readouterr().out
+        assert f"placed {len(small_shoot.names)} / {len(small_shoot.names)} photos" in printed
+        assert "IMG_0001.jpg" in printed and (tmp_path / "d" / "sparse" / "0").is_dir()
+
+
+class TestTrainOnResult:
+    def test_a_few_steps(self, processed, tmp_path):
+        from mono_hdr_plugin.registry import available_backbones
+        from mono_hdr_plugin.train import Trainer, train_config_for
+
+        if "gs" in available_backbones():
+            from backbones.gs.model import GaussianConfig
+
+            name, backbone_config = "gs", GaussianConfig(sh_degree=0, refine_start=10**9, backend="torch")
+        else:
+            import register_backbone  # examples/, on sys.path via tests/conftest.py
+
+            name, backbone_config = "voxel-grid", register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=16)
+        data = load_scene(DataConfig(data=processed[1], downscale=4))
+        config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
+                                                         save_renders=False, checkpoint_every=10**9, max_steps=3)
+        trainer = Trainer(config, name, data)
+        before = [p.detach().clone() for p in trainer.backbone.parameters()]
+        records = [trainer.train_step() for _ in range(3)]
+        assert all(math.isfinite(record["loss"]) for record in records)
+        assert any(not torch.equal(a, b) for a, b in zip(before, trainer.backbone.parameters()))
+
+
+class TestFindPhotos:
+    def test_natural_order_and_suffixes(self, tmp_path):
+        for name in ("b10.JPG", "b2.png", "b1.tiff", "notes.txt", ".hidden.jpg"):
+            (tmp_path / name).write_bytes(b"")
+        assert [p.name for p in find_photos(tmp_path)] == ["b1.tiff", "b2.png", "b10.JPG"]
+
+    def test_empty_folder(self, tmp_path):
+        with pytest.raises(DatasetError, match="no photos found"):
+            find_photos(tmp_path)
+
+    def test_missing_folder(self, tmp_path):
+        with pytest.raises(DatasetError, match="--images"):
+            find_photos(tmp_path / "nope")
+
+    def test_fewer_than_three(self, tmp_path):
+        plain_photos(tmp_path, 2)
+        with pytest.raises(DatasetError, match="only 2 photo"):
+            process_data(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"))
+
+
+class TestLoadPhoto:
+    def test_exif_orientation_is_applied(self, tmp_path):
+        pixels = np.zeros((2, 4, 3))
+        pixels[0, 0] = 1.0  # top-left marker
+        # Orientation 6: the camera was turned 90 degrees clockwise; viewers rotate the image back.
+        upright, _ = load_photo(save_jpeg(tmp_path / "r.jpg", pixels, orientation=6))
+        assert upright.shape == (4, 2, 3)
+        assert upright[0, -1].mean() > 0.5 and upright[0, 0].mean() < 0.5
+
+    def test_png_and_tiff(self, tmp_path):
+        image = Image.fromarray(np.full((5, 7, 3), 128, np.uint8))
+        for suffix in ("png", "tif"):
+            image.save(tmp_path / f"a.{suffix}")
+            pixels, exif = load_photo(tmp_path / f"a.{suffix}")
+            assert pixels.shape == (5, 7, 3) and pixels.max() == pytest.approx(128 / 255)
+            assert exif.exposure_time is None
+
+    def test_unreadable_photo_names_the_file(self, tmp_path):
+        photos = plain_photos(tmp_path, 4)
+        photos[1].write_bytes(photos[1].read_bytes()[:200])
+        with pytest.raises(DatasetError, match="p1.jpg.*cannot read the photo"):
+            process_data(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"))
+        assert not (tmp_path / "out").exists()
+
+
+class TestReadExif:
+    def test_exposure_aperture_iso_camera(self, tmp_path):
+        path = save_jpeg(tmp_path / "a.jpg", np.zeros((4, 4, 3)), exposure=Fraction(1, 60), iso=400,
+                         f_number=Fraction(28, 10), focal_35mm=26, model="Pixel 8")
+        with Image.open(path) as image:
+            exif = read_exif(image)
+        assert exif == PhotoExif(exposure_time=1 / 60, f_number=2.8, iso=400.0, focal_35mm=26.0,
+                                 camera="Mono-HDR Pixel 8")
+
+    def test_no_exif(self, tmp_path):
+        Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.jpg")
+        with Image.open(tmp_path / "a.jpg") as image:
+            assert read_exif(image) == PhotoExif()
+
+    def test_zero_exposure_counts_as_missing(self, tmp_path):
+        path = save_jpeg(tmp_path / "a.jpg", np.zeros((4, 4, 3)), exposure=Fraction(0, 1))
+        with Image.open(path) as image:
+            assert read_exif(image).exposure_time is None
+
+
+class TestRelativeExposure:
+    def test_known_value(self):
+        # 1/100 s at ISO 400, f/4 against ISO 100, f/2.8: 4x the gain, (2.8/4)^2 = 0.49 of the light.
+        assert relative_exposure(0.01, 400, 4.0, 100, 2.8) == pytest.approx(0.01 * 4 * 0.49)
+
+    def test_reference_settings_keep_the_time(self):
+        assert relative_exposure(1 / 60, 200, 2.8, 200, 2.8) == 1 / 60
+
+    def test_equivalent_exposures_agree(self):
+        # One stop less time, one stop more ISO, the same light: the same relative exposure.
+        assert relative_exposure(1 / 30, 100, 4.0, 100, 2.8) == pytest.approx(relative_exposure(1 / 60, 200, 4.0, 100, 2.8))
+        assert relative_exposure(1 / 30, 100, 4.0, 100, 2.8) == pytest.approx(
+            relative_exposure(1 / 60, 100, 4.0 / math.sqrt(2), 100, 2.8))
+
+
+class TestAssignExposures:
+    def test_sources_in_order_exif_csv_flag(self):
+        exifs = [PhotoExif(exposure_time=0.5), PhotoExif(), PhotoExif()]
+        exposures, _ = assign_exposures(["a", "b", "c"], exifs, {"b": 0.25}, 0.125)
+        assert exposures == [(0.5, "exif"), (0.25, "csv"), (0.125, "flag")]
+
+    def test_missing_exposure_says_what_to_pass(self):
+        with pytest.raises(DatasetError, match=r"b, c.*--exposure SECONDS.*--exposure-csv"):
+            assign_exposures(["a", "b", "c"], [PhotoExif(exposure_time=0.5), PhotoExif(), PhotoExif()], {}, None)
+
+    def test_csv_names_unknown_photo(self, tmp_path):
+        with pytest.raises(DatasetError, match="not in --images: typo.jpg"):
+            assign_exposures(["a"], [PhotoExif()], {"typo.jpg": 1.0}, None, tmp_path / "e.csv")
+
+    def test_fixed_iso_and_aperture_keep_exact_times(self):
+        exifs = [PhotoExif(exposure_time=t, iso=100, f_number=2.8) for t in (1 / 60, 1 / 250)]
+        exposures, reference = assign_exposures(["a", "b"], exifs, {}, None)
+        assert [t for t, _ in exposures] == [1 / 60, 1 / 250]
+        assert reference == {"iso": None, "f_number": None}
+
+    def test_varying_iso_and_aperture_are_folded(self):
+        exifs = [PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
+                 PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
+                 PhotoExif(exposure_time=0.01, iso=400, f_number=4.0)]
+        exposures, reference = assign_exposures(["a", "b", "c"], exifs, {}, None)
+        assert reference == {"iso": 100, "f_number": 2.8}  # the most common settings
+        assert exposures[0] == (0.01, "exif")
+        assert exposures[2][0] == pytest.approx(relative_exposure(0.01, 400, 4.0, 100, 2.8))
+
+
+class TestReadExposureCsv:
+    def test_header_and_rows(self, tmp_path):
+        path = tmp_path / "e.csv"
+        path.write_text("name,seconds\nIMG_1.jpg, 0.5\n\nIMG_2.jpg,1/1\n".replace("1/1", "1"))
+        assert read_exposure_csv(path) == {"IMG_1.jpg": 0.5, "IMG_2.jpg": 1.0}
+
+    def test_bad_value_names_the_line(self, tmp_path):
+        path = tmp_path / "e.csv"
+        path.write_text("a.jpg,0.5\nb.jpg,-1\n")
+        with pytest.raises(DatasetError, match=r"e.csv:2 \(b.jpg\).*positive"):
+            read_exposure_csv(path)
+
+    def test_duplicate_row(self, tmp_path):
+        path = tmp_path / "e.csv"
+        path.write_text("a.jpg,0.5\na.jpg,0.25\n")
+        with pytest.raises(DatasetError, match="listed twice"):
+            read_exposure_csv(path)
+
+    def test_csv_used_end_to_end(self, tmp_path):
+        plain_photos(tmp_path / "photos", 3)
+        (tmp_path / "e.csv").write_text("p0.jpg,0.5\n")
+        with pytest.raises(DatasetError, match=r"2 photo\(s\) have no exposure time.*p1.jpg, p2.jpg"):
+            process_data(ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out",
+                                           exposure_csv=tmp_path / "e.csv"))
+
+
+class TestCheckOneCamera:
+    def test_mixed_sizes(self, tmp_path):
+        with pytest.raises(DatasetError, match=r"different sizes.*2 at 40x30.*1 at 30x40 \(e.g. c.jpg\)"):
+            check_one_camera(["a.jpg", "b.jpg", "c.jpg"], [(40, 30), (40, 30), (30, 40)], [PhotoExif()] * 3, tmp_path)
+
+    def test_mixed_camera_models(self, tmp_path):
+        plain_photos(tmp_path / "photos", 2, exposure=Fraction(1, 50), model="Canon EOS R5")
+        save_jpeg(tmp_path / "photos" / "z.jpg", np.zeros((24, 32, 3)), exposure=Fraction(1, 50), model="Pixel 8")
+        with pytest.raises(DatasetError, match="several cameras.*'Mono-HDR Pixel 8'.*own folder"):
+            process_data(ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out"))
+
+    def test_one_camera_passes(self, tmp_path):
+        check_one_camera(["a", "b"], [(4, 3), (4, 3)], [PhotoExif(camera="X"), PhotoExif()], tmp_path)
+
+
+class TestTooFewRegistered:
+    def test_featureless_photos(self, tmp_path):
+        for index in range(4):
+            save_jpeg(tmp_path / f"grey{index}.jpg", np.full((64, 64, 3), 0.5), exposure=Fraction(1, 50))
+        with pytest.raises(DatasetError, match="placed no photos.*overlap"):
+            process_data(ProcessDataConfig(images=tmp_path, out=tmp_path / "out", num_threads=2))
+        assert not (tmp_path / "out").exists()
+
+    def test_min_registered_lists_the_missing(self, small_shoot, tmp_path):
+        # Three unrelated noise photos join the shoot: they cannot be placed, and 16/19 < 0.9.
+        photos = tmp_path / "photos"
+        photos.mkdir()
+        for name in small_shoot.names:
+            (photos / name).write_bytes((small_shoot.folder / name).read_bytes())
+        rng = np.random.default_rng(1)
+        for index in range(3):
+            save_jpeg(photos / f"ZZ_noise{index}.jpg", rng.random((192, 192, 3)), exposure=Fraction(1, 60), iso=100,
+                      f_number=Fraction(28, 10), focal_35mm=35)
+        config = ProcessDataConfig(images=photos, out=tmp_path / "out", camera_model="SIMPLE_PINHOLE", num_threads=2)
+        with pytest.raises(DatasetError, match=r"placed only 16 of 19.*ZZ_noise0.jpg"):
+            process_data(replace(config, min_registered=0.9))
+        report = process_data(config)
+        assert report.failed == ["ZZ_noise0.jpg", "ZZ_noise1.jpg", "ZZ_noise2.jpg"]
+        assert any("could not be placed" in note and "ZZ_noise1.jpg" in note for note in report.warnings)
+
+
+class TestExposureWarnings:
+    @staticmethod
+    def photos(*exposures):
+        return [PhotoRecord(source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=e, exposure_source="exif",
+                            registered=True) for i, e in enumerate(exposures)]
+
+    def test_single_exposure(self):
+        notes = exposure_warnings(self.photos(0.01, 0.01, 0.01), {"iso": None, "f_number": None})
+        assert len(notes) == 1 and "same exposure" in notes[0]
+
+    def test_wide_range(self):
+        notes = exposure_warnings(self.photos(1 / 4000, 1 / 2), {"iso": None, "f_number": None})
+        assert len(notes) == 1 and "11.0 stops" in notes[0]
+
+    def test_moderate_range_is_quiet(self):
+        assert exposure_warnings(self.photos(1 / 60, 1 / 15), {"iso": None, "f_number": None}) == []
+
+
+@pytest.mark.slow
+class TestLargerShoot:
+    def test_24_views_at_256_px(self, render_cache, texture, tmp_path):
+        scene = textured_scene(texture, views=24, resolution=256)
+        photos = shoot(scene, tmp_path / "photos", [Fraction(1, 125)])
+        report = process_data(ProcessDataConfig(images=photos.folder, out=tmp_path / "d", matcher="sequential",
+                                                num_threads=2))
+        assert report.failed == []
+        assert any("same exposure" in note for note in report.warnings)
+        rotation_error, position_error = camera_errors(tmp_path / "d", photos.cameras)
+        assert rotation_error < ROTATION_LIMIT_DEG / 2 and position_error < POSITION_LIMIT / 2
