@@ -10,7 +10,7 @@ from torch import Tensor
 
 from backbones.nerf.config import NerfConfig
 from backbones.nerf.fields import DensityGrid, GridRadianceField, MlpRadianceField
-from backbones.nerf.rendering import compositing_weights, make_composite, sample_deltas
+from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, sample_pdf, sample_stratified
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
@@ -101,9 +101,11 @@ class NerfBackbone(Backbone):
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         """Per-sample LDR colours of the camera's rays and their compositing closure.
 
-        Returns LdrFeatures with colors, raw_colors [N_rays, S, 3] (N_rays = prod(output_shape)),
-        composite: [N_rays, S, C] -> [*camera.output_shape, C], extras "weights" and
-        "sample_distances" (t along the unit ray) [N_rays, S],
+        Returns LdrFeatures with colors, raw_colors [N_rays, S, 3] (N_rays = prod(output_shape)) and
+        composite: [N_rays, S, C] -> [*camera.output_shape, C] for field=paper; for field=fast the
+        samples are packed, colors [M, 3] and composite [M, C] -> [*output_shape, C], holding only
+        the M samples that contribute (extras "ray_indices" [M] says whose they are). Extras "weights"
+        and "sample_distances" (t along the unit ray) [N_rays, S],
         "depth" (expected distance, 0 where empty) and "alpha" (accumulation) [*output_shape],
         and for field=paper auxiliary = [the coarse network's LdrFeatures].
         """
@@ -152,17 +154,36 @@ class NerfBackbone(Backbone):
 
     def _render_fast(self, origins: Tensor, directions: Tensor, camera: Camera,
                      output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
+        """Packed features: only samples in occupied cells get a density, and only those whose
+        weight reaches min_sample_weight get a colour (colors [M, 3], composite [M, C] -> image)."""
         fast = self.config.fast
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far,
                                      (self.bounds_min, self.bounds_max))
-        t_uniform = sample_stratified(t_near, t_far, fast.uniform_samples, perturb=stochastic)
-        t = t_uniform
+        t = sample_stratified(t_near, t_far, fast.uniform_samples, perturb=stochastic)
         if fast.importance_samples > 0:
             with torch.no_grad():
                 t_importance = self._proposal_samples(origins, directions, t_near, t_far, stochastic)
-            t = torch.sort(torch.cat([t_uniform, t_importance], dim=-1), dim=-1).values
-        density, raw_color = self._query_occupied(origins, directions, t)
-        return self._features(density, raw_color, t, t_far, output_shape)
+            t = torch.sort(torch.cat([t, t_importance], dim=-1), dim=-1).values
+        positions = self.normalise(origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
+        occupied = self._occupied(positions).nonzero()[:, 0]
+        density_occupied, geometry = self.grid_field.density_and_geometry(positions[occupied])
+        density = positions.new_zeros(positions.shape[0]).index_put((occupied,), density_occupied)
+        weights = compositing_weights(density.reshape(t.shape), sample_deltas(t, t_far) / self.scene_scale)
+        flat_weights = weights.reshape(-1)
+        kept = (flat_weights.detach() >= max(fast.min_sample_weight, torch.finfo(weights.dtype).tiny)).nonzero()[:, 0]
+        # Every kept sample has a positive weight, hence a positive density: it is among the occupied ones.
+        rank_in_occupied = torch.full_like(density, -1, dtype=torch.long).index_put(
+            (occupied,), torch.arange(occupied.shape[0], device=occupied.device))
+        ray_indices = kept // t.shape[1]
+        raw_color = self.grid_field.color(geometry[rank_in_occupied[kept]], directions[ray_indices])
+        accumulation = weights.sum(dim=-1)
+        extras = {"weights": weights, "sample_distances": t, "ray_indices": ray_indices,
+                  "depth": (weights * t).sum(dim=-1).reshape(output_shape),
+                  "alpha": accumulation.reshape(output_shape)}
+        composite = make_packed_composite(flat_weights[kept], ray_indices, accumulation, output_shape,
+                                          self.background)
+        return LdrFeatures(colors=torch.sigmoid(raw_color), raw_colors=raw_color, composite=composite,
+                           extras=extras)
 
     def _proposal_samples(self, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor,
                           stochastic: bool) -> Tensor:
@@ -175,15 +196,11 @@ class NerfBackbone(Backbone):
         weights = compositing_weights(cached, (edges[:, 1:] - edges[:, :-1]) / self.scene_scale)
         return sample_pdf(edges, weights, fast.importance_samples, deterministic=not stochastic)
 
-    def _query_occupied(self, origins: Tensor, directions: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
-        """Grid field at the samples in occupied cells; density 0 and raw colour 0 elsewhere."""
-        positions = self.normalise(origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
-        flat_directions = directions[:, None].expand(*t.shape, 3).reshape(-1, 3)
+    def _occupied(self, positions: Tensor) -> Tensor:
+        """Which normalised positions [M, 3] the field must evaluate: [M] bool."""
+        # Samples of rays that miss the box sit outside the grids' cube [-1, 1]^3: never evaluated.
+        # The tolerance keeps samples on the box faces that rounding pushed just outside.
+        wanted = (positions.abs() <= 1.0 + 1e-4).all(dim=-1)
         if self.density_grid.filled:
-            kept = (self.density_grid.lookup(positions) > self.config.fast.occupancy_threshold).nonzero()[:, 0]
-        else:
-            kept = torch.arange(positions.shape[0], device=positions.device)
-        density_kept, raw_kept = self.grid_field(positions[kept], flat_directions[kept])
-        density = positions.new_zeros(positions.shape[0]).index_put((kept,), density_kept)
-        raw_color = positions.new_zeros(positions.shape[0], 3).index_put((kept,), raw_kept)
-        return density.reshape(t.shape), raw_color.reshape(*t.shape, 3)
+            wanted &= self.density_grid.lookup(positions) > self.config.fast.occupancy_threshold
+        return wanted

@@ -83,6 +83,9 @@ class GridFieldConfig:
     occupancy_threshold: float = 0.01
     """Samples where the cached density (per unit of the normalised box) is below this are
     skipped once the grid has been filled."""
+    min_sample_weight: float = 1e-4
+    """Samples whose rendering weight is below this are dropped before colour: they cost the
+    colour MLP and the per-sample HDR lifting (L2H-CC) but change a pixel by < this x value."""
     rays_per_step: int = 1024
     """Rays per training step."""
     grid_lr: float = 1e-2
@@ -98,7 +101,7 @@ class NerfConfig:
     """NeRF backbone: the volume renderer plus the field chosen by `field`."""
 
     field: Literal["paper", "fast"] = "fast"
-    """paper: the official 8 x 256 MLP, 64 + 128 samples (faithful, ~2 s per step on CPU);
+    """paper: the official 8 x 256 MLP, 64 + 128 samples (faithful, far too slow for a CPU);
     fast: multi-resolution grids + tiny MLPs with density-grid sampling (CPU default)."""
     paper: MlpFieldConfig = dataclasses.field(default_factory=MlpFieldConfig)
     """Settings used when field=paper."""

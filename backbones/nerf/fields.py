@@ -100,19 +100,23 @@ class GridRadianceField(nn.Module):
         """positions: [M, 3] in [-1, 1]. Returns grid features [M, levels * features_per_level]."""
         return torch.cat([sample_grid(grid, positions) for grid in self.grids], dim=-1)
 
-    def _density_and_geometry(self, positions: Tensor) -> tuple[Tensor, Tensor]:
+    def density_and_geometry(self, positions: Tensor) -> tuple[Tensor, Tensor]:
+        """positions: [M, 3] in [-1, 1]. Returns density [M] and geometry features [M, geo_features]."""
         out = self.density_mlp(self.encode(positions))
         return activate_density(out[:, 0], self.config.density_activation), out[:, 1:]
 
     def density(self, positions: Tensor) -> Tensor:
         """positions: [M, 3] in [-1, 1]. Returns density [M] (for the density grid)."""
-        return self._density_and_geometry(positions)[0]
+        return self.density_and_geometry(positions)[0]
+
+    def color(self, geometry: Tensor, directions: Tensor) -> Tensor:
+        """geometry: [M, geo_features]; directions: [M, 3] unit. Returns raw (pre-sigmoid) colour [M, 3]."""
+        return self.color_mlp(torch.cat([geometry, positional_encoding(directions, self.config.dir_frequencies)], -1))
 
     def forward(self, positions: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
         """positions: [M, 3] in [-1, 1]; directions: [M, 3] unit. Returns density [M], raw colour [M, 3]."""
-        density, geometry = self._density_and_geometry(positions)
-        view_input = torch.cat([geometry, positional_encoding(directions, self.config.dir_frequencies)], -1)
-        return density, self.color_mlp(view_input)
+        density, geometry = self.density_and_geometry(positions)
+        return density, self.color(geometry, directions)
 
 
 class DensityGrid(nn.Module):

@@ -60,3 +60,31 @@ def make_composite(weights: Tensor, output_shape: tuple[int, ...],
         return image.reshape(*output_shape, channels)
 
     return composite
+
+
+def make_packed_composite(weights: Tensor, ray_indices: Tensor, accumulation: Tensor,
+                          output_shape: tuple[int, ...], background: Tensor) -> Callable[[Tensor], Tensor]:
+    """The closure LdrFeatures.composite for packed samples (only those that contribute).
+
+    weights: [M] of the kept samples; ray_indices: [M] the ray each belongs to (long);
+    accumulation: [N] each ray's total weight, N = prod(output_shape), dropped samples included;
+    background: [3], added as (1 - accumulation) * background to each group of 3 channels.
+    The closure maps values [M, C] -> [*output_shape, C].
+    """
+    num_rays = accumulation.shape[0]
+    has_background = bool(background.abs().sum() > 0)
+
+    def composite(values: Tensor) -> Tensor:
+        if values.dim() != 2 or values.shape[0] != weights.shape[0]:
+            raise ValueError(f"composite: values must have shape [{weights.shape[0]}, C] (packed samples, "
+                             f"channels), got {tuple(values.shape)}")
+        channels = values.shape[-1]
+        image = values.new_zeros(num_rays, channels).index_add(0, ray_indices, weights[:, None] * values)
+        if has_background:
+            if channels % 3:
+                raise ValueError(f"composite: a non-black background needs channels in groups of 3, "
+                                 f"got {channels}; set the NeRF background to (0, 0, 0)")
+            image = image + (1.0 - accumulation[:, None]) * background.to(image).repeat(channels // 3)
+        return image.reshape(*output_shape, channels)
+
+    return composite

@@ -90,16 +90,25 @@ class TestNerfBackboneSetup:
 
 
 class TestRenderLdrFeatures:
-    @pytest.mark.parametrize("field", FIELDS)
-    def test_pixel_batch_shapes(self, scene, field):
-        backbone = NerfBackbone(tiny_config(field), scene)
-        camera = orbit_camera().with_pixels(torch.rand(10, 2) * 8)
-        features = backbone.render_ldr_features(camera)
-        samples = 16  # paper: 8 coarse + 8 fine; fast: 8 uniform + 8 importance
-        assert features.colors.shape == features.raw_colors.shape == (10, samples, 3)
+    def test_pixel_batch_shapes_paper(self, scene):
+        backbone = NerfBackbone(tiny_config("paper"), scene)
+        features = backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8))
+        assert features.colors.shape == features.raw_colors.shape == (10, 16, 3)  # 8 coarse + 8 fine
         torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
-        assert features.composite(torch.rand(10, samples, 6)).shape == (10, 6)
-        assert features.extras["weights"].shape == (10, samples)
+        assert features.composite(torch.rand(10, 16, 6)).shape == (10, 6)
+        assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, 16)
+        assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
+        assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
+
+    def test_pixel_batch_shapes_fast(self, scene):
+        backbone = NerfBackbone(tiny_config("fast"), scene)
+        features = backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8))
+        packed = features.extras["ray_indices"].shape[0]
+        assert 0 < packed <= 10 * 16  # 8 uniform + 8 importance per ray, before dropping
+        assert features.colors.shape == features.raw_colors.shape == (packed, 3)
+        torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
+        assert features.composite(torch.rand(packed, 6)).shape == (10, 6)
+        assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, 16)
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
         assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
 
@@ -107,7 +116,7 @@ class TestRenderLdrFeatures:
     def test_full_image_shapes(self, scene, field):
         backbone = NerfBackbone(tiny_config(field), scene)
         features = backbone.render_ldr_features(orbit_camera(size=6))
-        assert features.colors.shape[0] == 36
+        assert features.extras["weights"].shape[0] == 36
         assert features.composite(features.colors).shape == (6, 6, 3)
         assert features.extras["alpha"].shape == (6, 6)
 
@@ -134,7 +143,8 @@ class TestRenderLdrFeatures:
     def test_background_fills_rays_that_miss(self, scene):
         backbone = NerfBackbone(tiny_config("fast", background=(0.1, 0.2, 0.3)), scene)
         looking_away = Camera(look_at(torch.tensor([3.0, 0.0, 0.0]), torch.tensor([6.0, 0.0, 0.0])), 8, 8, 4, 4, 8, 8)
-        image = backbone.render_ldr_features(looking_away).composite(torch.rand(64, 16, 3))
+        features = backbone.render_ldr_features(looking_away)
+        image = features.composite(torch.rand_like(features.colors))
         torch.testing.assert_close(image, torch.tensor([0.1, 0.2, 0.3]).expand(8, 8, 3))
 
 
@@ -200,16 +210,43 @@ class TestHardRays:
         assert torch.equal(features.extras["alpha"], torch.zeros(4, 4))
 
 
+class TestPackedSamples:
+    def test_packed_composite_equals_dense_composite(self, scene):
+        backbone = filled_fast_backbone(scene)
+        backbone.config.fast.min_sample_weight = 0.0
+        features = backbone.render_ldr_features(orbit_camera())
+        weights = features.extras["weights"]
+        dense = torch.zeros(weights.numel(), 3)
+        kept = (weights.reshape(-1) > 0).nonzero()[:, 0]
+        assert kept.shape[0] == features.colors.shape[0]
+        dense[kept] = features.colors
+        expected = torch.einsum("ns,nsc->nc", weights, dense.reshape(*weights.shape, 3))
+        torch.testing.assert_close(features.composite(features.colors), expected.reshape(8, 8, 3))
+
+    def test_dropped_samples_change_pixels_little(self, scene):
+        backbone = filled_fast_backbone(scene)
+        backbone.config.fast.min_sample_weight = 0.05
+        with torch.no_grad():
+            dropped = backbone.render_ldr_features(orbit_camera())
+            backbone.config.fast.min_sample_weight = 0.0
+            full = backbone.render_ldr_features(orbit_camera())
+        assert dropped.colors.shape[0] < full.colors.shape[0]
+        difference = full.composite(full.colors.new_ones(full.colors.shape)) - dropped.composite(
+            dropped.colors.new_ones(dropped.colors.shape))
+        # Each dropped sample had weight < 0.05: a pixel loses at most 16 of them.
+        assert (difference >= 0).all() and (difference <= 16 * 0.05).all()
+
+
 class TestOccupancySkipping:
     def test_empty_cells_are_not_evaluated(self, scene):
         backbone = NerfBackbone(tiny_config("fast"), scene)
         backbone.density_grid.update(lambda p: 5.0 * (p[:, 0] > 0.0).float(), decay=0.9)
-        calls = []
-        backbone.grid_field.register_forward_hook(lambda module, inputs, output: calls.append(inputs[0].shape[0]))
+        evaluated = []
+        backbone.grid_field.density_mlp.register_forward_hook(
+            lambda module, inputs, output: evaluated.append(inputs[0].shape[0]))
         features = backbone.render_ldr_features(orbit_camera())
-        assert calls and calls[0] < features.colors.shape[0] * features.colors.shape[1]
-        skipped = features.extras["weights"] == 0
-        assert skipped.any()
+        assert 0 < evaluated[0] < features.extras["sample_distances"].numel()
+        assert (features.extras["weights"] == 0).any()
 
     def test_importance_samples_follow_the_density_grid(self, scene):
         backbone = NerfBackbone(tiny_config("fast"), scene)
