@@ -30,7 +30,7 @@ from rich.progress import track
 from rich.table import Table
 
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.io import write_png
+from mono_hdr_plugin.data.io import read_image, write_png
 from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key, write_json
 from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER
 from mono_hdr_plugin.data.loading import downscale_image
@@ -43,7 +43,7 @@ WIDE_RANGE_STOPS = 8.0
 """Exposures spanning more stops than this are worth a warning: more than one sensor's range."""
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 REPORT_FILE = "process_data.json"
-FULL_FRAME_DIAGONAL_WIDTH_MM = 36.0
+FULL_FRAME_WIDTH_MM = 36.0
 """Width of a 35 mm film frame: EXIF FocalLengthIn35mmFilm is relative to it."""
 
 # EXIF tag numbers (EXIF 2.32). Orientation is applied by ImageOps.exif_transpose.
@@ -337,7 +337,7 @@ def _initial_camera_params(model: str, exif: PhotoExif, width: int, height: int)
         return ""
     import pycolmap
 
-    focal = exif.focal_35mm / FULL_FRAME_DIAGONAL_WIDTH_MM * max(width, height)
+    focal = exif.focal_35mm / FULL_FRAME_WIDTH_MM * max(width, height)
     return pycolmap.Camera.create_from_model_name(1, model, focal, width, height).params_to_string()
 
 
@@ -498,8 +498,6 @@ def write_dataset(config: ProcessDataConfig, model, photos: list[PhotoRecord], w
     if model.cameras[next(iter(model.cameras))].model.name not in PINHOLE_MODELS:
         with console.status("undistorting"):
             model, image_dir = undistort(model, image_dir, work)
-    from mono_hdr_plugin.data.io import read_image
-
     placed = [photo for photo in photos if photo.registered]
     for photo in track(placed, description="writing images", console=console):
         pixels = downscale_image(read_image(image_dir / photo.name), config.downscale, photo.name)
