@@ -270,16 +270,15 @@ def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict
     isos, f_numbers = {e.iso for e in timed if e.iso}, {e.f_number for e in timed if e.f_number}
     reference = {"iso": _most_common([e.iso for e in timed]) if len(isos) > 1 else None,
                  "f_number": _most_common([e.f_number for e in timed]) if len(f_numbers) > 1 else None}
+    # A setting that does not vary is left out (ratio exactly 1); a photo missing a varying one
+    # is assumed to have the reference value (exposure_warnings says so).
+    iso_reference, f_reference = reference["iso"] or 1.0, reference["f_number"] or 1.0
     exposures, lacking = [], []
     for source, exif in zip(sources, exifs):
         if exif.exposure_time is not None:
-            time = exif.exposure_time
-            if reference["iso"] is not None:
-                time = relative_exposure(time, exif.iso or reference["iso"], 1.0, reference["iso"], 1.0)
-            if reference["f_number"] is not None:
-                time = relative_exposure(time, 1.0, exif.f_number or reference["f_number"], 1.0,
-                                         reference["f_number"])
-            exposures.append((time, "exif"))
+            iso = (exif.iso or iso_reference) if reference["iso"] else 1.0
+            f_number = (exif.f_number or f_reference) if reference["f_number"] else 1.0
+            exposures.append((relative_exposure(exif.exposure_time, iso, f_number, iso_reference, f_reference), "exif"))
         elif source in csv_table:
             exposures.append((csv_table[source], "csv"))
         elif flag is not None:
@@ -457,12 +456,15 @@ def process_data(config: ProcessDataConfig, console: Console | None = None) -> P
 
 
 def check_config(config: ProcessDataConfig) -> None:
+    """Flag values that cannot work, before any photo is read."""
     if config.downscale not in (1, 2, 4):
         raise DatasetError(f"--downscale must be 1, 2 or 4, got {config.downscale}")
     if not 0 < config.min_registered <= 1:
         raise DatasetError(f"--min-registered must be a fraction in (0, 1], got {config.min_registered}")
     if config.exposure is not None:
         check_exposure(config.exposure, "--exposure")
+    if config.out.exists() and not config.out.is_dir():
+        raise DatasetError(f"{config.out}: is a file; --out must be a folder to create")
     if config.out.exists() and any(config.out.iterdir()) and not config.overwrite:
         raise DatasetError(f"{config.out}: already exists and is not empty; pass --overwrite to replace it "
                            "or choose another --out")

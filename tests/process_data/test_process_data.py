@@ -160,6 +160,27 @@ class TestFindPhotos:
             process_data(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"))
 
 
+class TestCheckConfig:
+    @pytest.mark.parametrize("change,message", [({"downscale": 3}, "--downscale"),
+                                                ({"min_registered": 0.0}, "--min-registered"),
+                                                ({"exposure": -1.0}, "--exposure"),
+                                                ({"out": None}, "--out must differ")])
+    def test_bad_flags(self, tmp_path, change, message):
+        plain_photos(tmp_path, 3)
+        config = replace(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), **change)
+        if config.out is None:
+            config.out = tmp_path
+            config.overwrite = True
+        with pytest.raises(DatasetError, match=message):
+            process_data(config)
+
+    def test_out_is_a_file(self, tmp_path):
+        plain_photos(tmp_path / "photos", 3)
+        (tmp_path / "out").write_text("")
+        with pytest.raises(DatasetError, match="is a file"):
+            process_data(ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out", overwrite=True))
+
+
 class TestLoadPhoto:
     def test_exif_orientation_is_applied(self, tmp_path):
         pixels = np.zeros((2, 4, 3))
@@ -337,6 +358,12 @@ class TestExposureWarnings:
     def test_wide_range(self):
         notes = exposure_warnings(self.photos(1 / 4000, 1 / 2), {"iso": None, "f_number": None})
         assert len(notes) == 1 and "11.0 stops" in notes[0]
+
+    def test_photo_missing_a_varying_setting_is_named(self):
+        photos = self.photos(0.01, 0.02)
+        photos[0].iso = 100.0
+        notes = exposure_warnings(photos, {"iso": 100.0, "f_number": None})
+        assert len(notes) == 1 and "1.jpg" in notes[0] and "reference value was assumed" in notes[0]
 
     def test_moderate_range_is_quiet(self):
         assert exposure_warnings(self.photos(1 / 60, 1 / 15), {"iso": None, "f_number": None}) == []
