@@ -162,11 +162,6 @@ def _optional_commands() -> dict[str, tuple[type, Callable]]:
         found["process-data"] = (ProcessDataConfig, process_data_command)
     except ImportError:
         pass
-    try:
-        from mono_hdr_plugin.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
-        found["process-data"] = (ProcessDataConfig, process_data_command)
-    except ImportError:
-        pass
     return found
 
 
