@@ -101,6 +101,17 @@ def command_render(config: RenderConfig) -> None:
     console.print(f"wrote {len(written)} images to {config.out}")
 
 
+def command_bench(argv: list[str]) -> None:
+    from mono_hdr_plugin.bench import BENCHMARKS  # noqa: PLC0415
+
+    config = tyro.extras.subcommand_cli_from_dict({name: cls for name, (cls, _) in BENCHMARKS.items()}, args=argv,
+                                                  prog="mono-hdr bench",
+                                                  description="Accuracy versus time: curves, the paper's tables, raster.")
+    function = next(function for cls, function in BENCHMARKS.values() if isinstance(config, cls))
+    config.out.mkdir(parents=True, exist_ok=True)
+    function(config)
+
+
 def command_backbones(config: BackbonesConfig) -> None:
     from mono_hdr_plugin.registry import available_backbones, broken_plugins  # noqa: PLC0415
 
@@ -142,6 +153,7 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
         "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
         "render": (RenderConfig.__doc__, simple(RenderConfig, command_render, "render")),
         "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
+        "bench": ("bench curves|paper|raster: what accuracy costs in time (JSON, Markdown, plots)", command_bench),
     }
     for name, (config_class, function) in _optional_commands().items():
         commands[name] = (config_class.__doc__, simple(config_class, function, name))
