@@ -71,10 +71,12 @@ def mu_law(x: Tensor) -> Tensor:
 def normalise_hdr(hdr: Tensor, reference_max: Tensor | None = None) -> Tensor:
     """HDR -> [0, 1]: divide by a maximum (the image's own unless given), clamp, mu-law.
 
-    An all-zero image stays zero instead of dividing by zero.
+    An all-zero image stays zero instead of dividing by zero. Half-precision input is computed
+    in float32: float16 rounds the 1e-12 floor to 0, and 0 / 0 is NaN.
     """
-    peak = hdr.max() if reference_max is None else reference_max
-    return mu_law((hdr / peak.clamp_min(1e-12)).clamp(0.0, 1.0))
+    work = hdr.float() if hdr.dtype in (torch.float16, torch.bfloat16) else hdr
+    peak = work.max() if reference_max is None else reference_max.to(work.dtype)
+    return mu_law((work / peak.clamp_min(1e-12)).clamp(0.0, 1.0)).to(hdr.dtype)
 
 
 HdrNormalisation = Literal["own_max", "gt_max"]
