@@ -103,7 +103,9 @@ class GridRadianceField(nn.Module):
     def density_and_geometry(self, positions: Tensor) -> tuple[Tensor, Tensor]:
         """positions: [M, 3] in [-1, 1]. Returns density [M] and geometry features [M, geo_features]."""
         out = self.density_mlp(self.encode(positions))
-        return activate_density(out[:, 0], self.config.density_activation), out[:, 1:]
+        config = self.config
+        density = config.density_scale * activate_density(out[:, 0] + config.density_bias, config.density_activation)
+        return density, out[:, 1:]
 
     def density(self, positions: Tensor) -> Tensor:
         """positions: [M, 3] in [-1, 1]. Returns density [M] (for the density grid)."""
