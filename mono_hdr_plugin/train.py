@@ -73,6 +73,18 @@ def parse_view_ratio(ratio: str) -> tuple[int, int]:
     return ldr, hdr
 
 
+def check_train_config(config: TrainConfig) -> None:
+    """Refuse out-of-range run flags before any work is done, naming the flag."""
+    minimums = {"max_steps": 0, "checkpoint_every": 1, "eval_every": 0, "nan_patience": 1}
+    for name, minimum in minimums.items():
+        value = getattr(config, name)
+        if value < minimum:
+            raise ValueError(f"--{name.replace('_', '-')} must be an integer >= {minimum}, got {value}")
+    if config.max_eval_views is not None and config.max_eval_views < 1:
+        raise ValueError(f"--max-eval-views must be >= 1 (or omitted for all views), got {config.max_eval_views}")
+    parse_view_ratio(config.hdr_view_ratio)
+
+
 def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
     """Which training views keep their HDR ground truth, spread evenly, for an LDR:HDR ratio."""
     ldr, hdr = parse_view_ratio(ratio)
@@ -101,6 +113,7 @@ class Trainer:
     """Owns backbone, method, optimiser and data for one run."""
 
     def __init__(self, config: TrainConfig, backbone_name: str, scene: SceneData):
+        check_train_config(config)
         self.config, self.backbone_name, self.scene = config, backbone_name, scene
         torch.manual_seed(config.seed)
         backbone_class = get_backbone(backbone_name)
@@ -324,6 +337,7 @@ def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> Non
 
 def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:
     """Load the scene (unless given) and set up a Trainer, resuming when asked."""
+    check_train_config(config)
     if scene is None:
         from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
 
