@@ -36,6 +36,10 @@ class View:
         if self.hdr is not None and tuple(self.hdr.shape) != expected:
             raise ValueError(f"{label}: HDR ground truth has shape {tuple(self.hdr.shape)}, "
                              f"expected {expected}")
+        # NaN in the data would make every step on this view non-finite, skipped by the trainer
+        for what, pixels in (("image", self.image), ("HDR ground truth", self.hdr)):
+            if pixels is not None and not torch.isfinite(pixels).all():
+                raise ValueError(f"{label}: {what} contains NaN or Inf; repair or drop the file")
 
 
 @dataclass
