@@ -3,6 +3,7 @@
 All functions take torch tensors [H, W, C] (or [N, C] for PSNR) with LDR values in [0, 1].
 """
 
+import functools
 import math
 from typing import Literal
 
@@ -110,6 +111,7 @@ class LpipsUnavailable(RuntimeError):
     """LPIPS needs network weights that are not on this machine."""
 
 
+@functools.cache
 def load_lpips():
     """The LPIPS (AlexNet) metric if its package and weights are installed locally.
 
@@ -124,3 +126,10 @@ def load_lpips():
         return lpips.LPIPS(net="alex", verbose=False, pretrained=True)
     except Exception as error:  # a download attempt fails without network
         raise LpipsUnavailable(f"LPIPS skipped: its network weights are not available locally ({error})") from error
+
+
+def lpips_distance(model, pred: Tensor, target: Tensor) -> float:
+    """LPIPS between two images [H, W, 3] in [0, 1] (the network takes [-1, 1])."""
+    to_network = lambda image: image.permute(2, 0, 1).unsqueeze(0).float() * 2 - 1  # noqa: E731
+    with torch.no_grad():
+        return model(to_network(pred), to_network(target)).item()

@@ -19,7 +19,8 @@ from mono_hdr_plugin.checkpoints import (config_from_dict, config_to_json, load_
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
-from mono_hdr_plugin.metrics import hdr_metrics, psnr, ssim
+from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, psnr, ssim,
+                                     tone_mapped_pair)
 from mono_hdr_plugin.registry import get_backbone
 
 console = Console(stderr=True)
@@ -290,16 +291,25 @@ def evaluate(backbone: Backbone, method: HdrMethod, scene: SceneData, backbone_n
                          f"({sorted(train_exposures)}) for method {config.hdr.method!r}")
     view_ids = sorted({v.view_id for v in views})[:config.max_eval_views]
     views = [v for v in views if v.view_id in set(view_ids)]
+    try:
+        lpips_model, lpips_skipped = load_lpips(), None
+    except LpipsUnavailable as reason:
+        lpips_model, lpips_skipped = None, str(reason)
     per_exposure: dict[float, list[tuple[float, float]]] = {}
+    lpips_rows: dict[str, list[float]] = {"lpips_ldr": [], "lpips_hdr": []}
     hdr_rows: list[dict[str, float]] = []
     hdr_done: set[int] = set()
     for view in views:
         output = render_full(backbone, method, view.camera, view.exposure)
         ldr = output.ldr.clamp(0.0, 1.0)
         per_exposure.setdefault(view.exposure, []).append((psnr(ldr, view.image), ssim(ldr.double(), view.image.double()).item()))
+        if lpips_model is not None:
+            lpips_rows["lpips_ldr"].append(lpips_distance(lpips_model, ldr, view.image))
         if view.hdr is not None and view.view_id not in hdr_done:
             hdr_done.add(view.view_id)
             hdr_rows.append(hdr_metrics(output.hdr, view.hdr))
+            if lpips_model is not None:
+                lpips_rows["lpips_hdr"].append(lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max")))
             if render_dir is not None:
                 save_view_renders(render_dir, view, output)
     # The headline LDR figure averages the exposures the model was trained at (t1/t3/t5).
@@ -317,6 +327,10 @@ def evaluate(backbone: Backbone, method: HdrMethod, scene: SceneData, backbone_n
     }
     for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"):
         metrics[key] = _mean([row[key] for row in hdr_rows]) if hdr_rows else None
+    for key, values in lpips_rows.items():
+        metrics[key] = _mean(values) if values else None
+    if lpips_skipped:
+        metrics["lpips_skipped"] = lpips_skipped
     return metrics
 
 

@@ -105,3 +105,23 @@ class TestLosses:
     def test_zero_for_identical(self):
         image = torch.rand(12, 12, 3)
         assert photometric_loss(image, image, "l1_dssim").item() == pytest.approx(0.0, abs=1e-6)
+
+
+class TestLpips:
+    def test_skipped_with_a_clear_reason_when_unavailable(self, monkeypatch):
+        import builtins
+
+        from mono_hdr_plugin.metrics import LpipsUnavailable, load_lpips
+
+        real_import = builtins.__import__
+
+        def no_lpips(name, *args, **kwargs):
+            if name == "lpips":
+                raise ImportError("no module named lpips")
+            return real_import(name, *args, **kwargs)
+
+        load_lpips.cache_clear()
+        monkeypatch.setattr(builtins, "__import__", no_lpips)
+        with pytest.raises(LpipsUnavailable, match="LPIPS skipped"):
+            load_lpips()
+        load_lpips.cache_clear()
