@@ -1,6 +1,7 @@
-"""Shared fixtures: the example voxel-grid backbone and its tiny synthetic capture."""
+"""Shared fixtures: the example voxel-grid backbone and its capture, a private studio cache."""
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -26,3 +27,21 @@ def voxel_backbone_config():
     import register_backbone
 
     return register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24)
+
+
+@pytest.fixture(scope="session")
+def studio_cache(tmp_path_factory):
+    """Point the render cache at a session folder, so tests never touch the user's cache."""
+    folder = tmp_path_factory.mktemp("studio-cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MONO_HDR_CACHE", str(folder))
+        yield folder
+
+
+@pytest.fixture(scope="session")
+def tiny_demo(studio_cache):
+    """The demo scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
+    from mono_hdr_plugin.studio.scenes import SCENES
+
+    demo = SCENES["demo"]
+    return replace(demo, resolution=(24, 24), spp=4, rig=replace(demo.rig, views=10))

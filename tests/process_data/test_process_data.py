@@ -371,7 +371,7 @@ class TestExposureWarnings:
 
 @pytest.mark.slow
 class TestLargerShoot:
-    def test_24_views_at_256_px(self, render_cache, texture, tmp_path):
+    def test_24_views_at_256_px(self, studio_cache, texture, tmp_path):
         scene = textured_scene(texture, views=24, resolution=256)
         photos = shoot(scene, tmp_path / "photos", [Fraction(1, 125)])
         report = process_data(ProcessDataConfig(images=photos.folder, out=tmp_path / "d", matcher="sequential",
