@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.errors import DatasetError, missing
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -37,6 +38,14 @@ def check_exposure(value, where: str) -> float:
         raise DatasetError(f"{where}: exposure time {value!r} is not a positive number of seconds; "
                            "fix the exposure value")
     return exposure
+
+
+def camera_from(where: str, **fields) -> Camera:
+    """A Camera; a bad pose, focal length or near/far is reported naming the file it came from."""
+    try:
+        return Camera(**fields)
+    except ValueError as error:
+        raise DatasetError(f"{where}: {error}") from error
 
 
 def check_finite(array: np.ndarray, path: Path, what: str) -> np.ndarray:

@@ -24,7 +24,7 @@ from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, Shot, bo
                                            bounds_from_points)
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_png
-from mono_hdr_plugin.data.layouts.common import (check_exposure, check_finite, check_one_size,
+from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
                                                  image_size, load_json, natural_key,
                                                  split_view_exposure, write_json)
 
@@ -73,8 +73,8 @@ def _camera(colmap_camera, pose, folder: Path, name: str) -> Camera:
     w2c = np.eye(4)
     w2c[:3] = check_finite(pose.matrix(), folder / MODEL_FOLDER, f"the pose of {name}")
     # COLMAP's pixel (0, 0) covers [0, 1]^2 with its centre at 0.5, the same as Camera's.
-    return Camera(c2w=torch.from_numpy(np.linalg.inv(w2c)).float(), fx=fx, fy=fy, cx=cx, cy=cy,
-                  width=colmap_camera.width, height=colmap_camera.height)
+    return camera_from(f"{folder / MODEL_FOLDER} image {name}", c2w=torch.from_numpy(np.linalg.inv(w2c)).float(),
+                       fx=fx, fy=fy, cx=cx, cy=cy, width=colmap_camera.width, height=colmap_camera.height)
 
 
 def _cam_from_world(image):

@@ -14,11 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import atomic_path, read_image, write_png
-from mono_hdr_plugin.data.layouts.common import (IMAGE_SUFFIXES, check_exposure, check_finite,
+from mono_hdr_plugin.data.layouts.common import (IMAGE_SUFFIXES, camera_from, check_exposure, check_finite,
                                                  check_one_size, image_size, natural_key,
                                                  split_view_exposure)
 
@@ -82,9 +81,10 @@ def read(folder: Path) -> CapturedScene:
         (first_name, first_row), *_ = groups[token]
         pose = first_row[:15].reshape(3, 5)
         focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
-        camera = Camera(c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(), fx=focal, fy=focal,
-                        cx=width / 2, cy=height / 2, width=width, height=height,
-                        near=float(first_row[15]), far=float(first_row[16]))
+        camera = camera_from(f"{folder / POSES_FILE} row of {first_name}",
+                             c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(), fx=focal, fy=focal,
+                             cx=width / 2, cy=height / 2, width=width, height=height,
+                             near=float(first_row[15]), far=float(first_row[16]))
         shots = [Shot(check_exposure(row[17], f"{folder / POSES_FILE} row of {name}"),
                       functools.partial(read_image, images / name), name)
                  for name, row in groups[token]]

@@ -17,7 +17,7 @@ from mono_hdr_plugin.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_png
-from mono_hdr_plugin.data.layouts.common import (check_exposure, check_finite, check_one_size,
+from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
                                                  image_size, load_json, write_json)
 
 SPLITS = ("train", "test")
@@ -96,7 +96,8 @@ def read(folder: Path) -> CapturedScene:
     views = []
     for view_id, split, file_path, c2w_gl, shots in train + test:
         c2w = torch.from_numpy(c2w_gl).float() @ OPENGL_TO_OPENCV
-        camera = Camera(c2w=c2w, fx=focal, fy=focal, cx=width / 2, cy=height / 2, width=width, height=height)
+        camera = camera_from(f"{folder / f'transforms_{split}.json'} frame {file_path!r}", c2w=c2w, fx=focal,
+                             fy=focal, cx=width / 2, cy=height / 2, width=width, height=height)
         views.append(CapturedView(view_id=view_id, camera=camera, split=split, shots=shots,
                                   hdr=_hdr_source(folder, split, file_path), name=file_path))
     bounds_min, bounds_max = bounds_from_cameras([v.camera for v in views])
