@@ -104,8 +104,8 @@ def make_trainer(tmp_path: Path, backbone: str, scene: SceneData, max_steps: int
 EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 
 
-def write_disk_scene(folder: Path, size: int = 16, views: int = 6) -> None:
-    """The synthetic scene photographed at t1..t5, written in the HDR-NeRF synthetic layout."""
+def write_disk_scene(folder: Path, size: int = 16, views: int = 6, layout: str = "hdr-nerf-synthetic") -> None:
+    """The synthetic scene photographed at t1..t5, written in a dataset layout."""
     from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
     from mono_hdr_plugin.data.layouts import write_layout
 
@@ -116,7 +116,7 @@ def write_disk_scene(folder: Path, size: int = 16, views: int = 6) -> None:
         shots = [Shot(t, constant(photograph(hdr, t).numpy()), f"{index}_{e}") for e, t in enumerate(EXPOSURES)]
         captured.append(CapturedView(index, camera, "train" if index % 2 == 0 else "test", shots,
                                      constant(hdr.numpy())))
-    write_layout(CapturedScene("hard-disk", captured, BOUNDS[0], BOUNDS[1]), folder, "hdr-nerf-synthetic")
+    write_layout(CapturedScene("hard-disk", captured, BOUNDS[0], BOUNDS[1]), folder, layout)
 
 
 def finite_parameters(*modules: torch.nn.Module) -> list[str]:
