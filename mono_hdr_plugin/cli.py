@@ -3,13 +3,11 @@
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Callable
+from typing import Callable
 
 import tyro
 from rich.console import Console
 from rich.table import Table
-
-from mono_hdr_plugin.data.config import DataConfig
 
 console = Console()
 
@@ -22,8 +20,10 @@ class EvalConfig:
     """A checkpoint written by `mono-hdr train` (OUT/checkpoints/latest.pt)."""
     out: Path = Path("outputs/eval")
     """Folder for metrics.json and renders/."""
-    data: Annotated[DataConfig | None, tyro.conf.arg(name="data-config")] = None
-    """Evaluate on other data than the run's own (omit to reuse the training data settings)."""
+    data: Path | None = None
+    """Evaluate on this dataset folder instead of the run's own data (same protocol settings)."""
+    scene: str | None = None
+    """Evaluate on this built-in scene instead of the run's own data."""
     save_renders: bool = True
     """Write EXR and PNG renders of the test views."""
 
@@ -87,7 +87,7 @@ def command_eval(config: EvalConfig) -> None:
     from mono_hdr_plugin.checkpoints import write_json  # noqa: PLC0415
     from mono_hdr_plugin.train import load_trained  # noqa: PLC0415
 
-    trainer, _ = load_trained(config.checkpoint, data=config.data)
+    trainer, _ = load_trained(config.checkpoint, data_path=config.data, scene_name=config.scene)
     trainer.config.out = config.out
     metrics = trainer.evaluate(save_renders=config.save_renders)
     write_json(config.out / "metrics.json", metrics)

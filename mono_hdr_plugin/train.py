@@ -1,5 +1,6 @@
 """Training, evaluation and rendering of any backbone with any method."""
 
+import dataclasses
 import json
 import math
 import time
@@ -363,16 +364,17 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     return trainer
 
 
-def load_trained(checkpoint: Path, scene: SceneData | None = None,
-                 data: DataConfig | None = None) -> tuple[Trainer, dict[str, Any]]:
-    """A Trainer restored from a checkpoint file, on its own data unless `data`/`scene` is given."""
+def load_trained(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
+                 scene_name: str | None = None) -> tuple[Trainer, dict[str, Any]]:
+    """A Trainer restored from a checkpoint file, on its own data unless other data is given
+    (an in-memory `scene`, a dataset folder or a built-in scene name)."""
     payload = load_checkpoint(checkpoint)
     backbone_class = get_backbone(payload["backbone_name"])
     values = json.loads(payload["config"])
     train_config_class = train_config_for(backbone_class.config_class)
     config = config_from_dict(train_config_class, values)
-    if data is not None:
-        config.data = data
+    if data_path is not None or scene_name is not None:
+        config.data = dataclasses.replace(config.data, data=data_path, scene=scene_name)
     config.resume = False
     trainer = build_trainer(config, payload["backbone_name"], scene)
     trainer.restore(payload)

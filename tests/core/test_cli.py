@@ -53,7 +53,8 @@ class TestTrainEvalRender:
         assert list(out.glob("renders/*_hdr.exr")) and list(out.glob("renders/*_ldr.png"))
 
         checkpoint = out / "checkpoints" / "latest.pt"
-        main(["eval", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "eval"), "--no-save-renders"])
+        main(["eval", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "eval"), "--no-save-renders",
+              "--scene", "demo"])
         again = json.loads((tmp_path / "eval" / "metrics.json").read_text())
         assert again["ldr_psnr"] == pytest.approx(metrics["ldr_psnr"], rel=1e-5)
 
