@@ -191,5 +191,22 @@ def main(argv: list[str] | None = None) -> None:
     commands[argv[0]][1](argv[1:])
 
 
+def run() -> None:
+    """Console entry point: user errors print one line (set MONO_HDR_DEBUG=1 for the traceback)."""
+    import os  # noqa: PLC0415
+
+    from mono_hdr_plugin.checkpoints import CheckpointError  # noqa: PLC0415
+    from mono_hdr_plugin.registry import BackboneRegistryError  # noqa: PLC0415
+    from mono_hdr_plugin.train import TrainingDiverged  # noqa: PLC0415
+
+    try:
+        main()
+    except (ValueError, FileNotFoundError, CheckpointError, BackboneRegistryError, TrainingDiverged) as error:
+        if os.environ.get("MONO_HDR_DEBUG"):
+            raise
+        console.print(f"[red]error:[/red] {error}")
+        raise SystemExit(2) from None
+
+
 if __name__ == "__main__":
-    main()
+    run()

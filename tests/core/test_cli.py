@@ -71,3 +71,16 @@ class TestTrainEvalRender:
         main(["train", "voxel-grid", "--max-steps", "2", *common])
         main(["train", "voxel-grid", "--max-steps", "4", "--resume", *common])
         assert json.loads((out / "metrics.json").read_text())["steps"] == 4
+
+
+class TestConsoleEntry:
+    def test_user_error_is_one_line_and_exit_2(self, monkeypatch, capsys):
+        from mono_hdr_plugin import cli
+
+        monkeypatch.setattr("sys.argv", ["mono-hdr", "eval", "--checkpoint", "/nonexistent/latest.pt"])
+        monkeypatch.delenv("MONO_HDR_DEBUG", raising=False)
+        with pytest.raises(SystemExit) as exit_info:
+            cli.run()
+        assert exit_info.value.code == 2
+        out = capsys.readouterr().out
+        assert "error:" in out and "latest.pt does not exist" in out and "Traceback" not in out
