@@ -106,7 +106,7 @@ class NerfConfig:
     """NeRF backbone: the volume renderer plus the field chosen by `field`."""
 
     field: Literal["paper", "fast"] = "fast"
-    """paper: the official 8 x 256 MLP, 64 + 128 samples (faithful, far too slow for a CPU);
+    """paper: the official 8 x 256 MLP, 64 + 128 samples (faithful, ~40 s per step on 2 CPU cores);
     fast: multi-resolution grids + tiny MLPs with density-grid sampling (CPU default)."""
     paper: MlpFieldConfig = dataclasses.field(default_factory=MlpFieldConfig)
     """Settings used when field=paper."""

@@ -5,6 +5,9 @@ import math
 import pytest
 import torch
 
+from backbones.nerf import NerfConfig
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import METHODS
 from mono_hdr_plugin.train import Trainer, render_full, train_config_for
 from nerf_scenes import tiny_config
@@ -51,3 +54,20 @@ class TestCheckpoint:
         resumed.restore(torch.load(trainer.checkpoint_path(), weights_only=True))
         assert resumed.backbone.density_grid.filled
         assert resumed.train_step()["loss"] == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.slow
+class TestFastFieldLearnsTheDemoScene:
+    def test_hdr_psnr_rises(self, tmp_path):
+        scene = load_scene(DataConfig(scene="demo"))
+        config = train_config_for(NerfConfig)(backbone=NerfConfig.preset("fast"), out=tmp_path / "run", quiet=True,
+                                              save_renders=False, checkpoint_every=10**9, max_steps=400,
+                                              max_eval_views=2)
+        trainer = Trainer(config, "nerf", scene)
+        for _ in range(50):
+            trainer.train_step()
+        early = trainer.evaluate()["hdr_psnr"]
+        while trainer.step < config.max_steps:
+            trainer.train_step()
+        late = trainer.evaluate()["hdr_psnr"]
+        assert late > early + 0.5
