@@ -50,9 +50,15 @@ class SceneInfo:
 
     @property
     def extent(self) -> float:
-        """Radius of the camera rig, as 3DGS uses for its densification thresholds."""
+        """Radius of the camera rig, as 3DGS uses for its densification thresholds.
+
+        A single camera (or cameras at one spot) has no rig: half the scene diagonal stands in.
+        """
         centers = torch.stack([c.center.float() for c in self.train_cameras])
-        return float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max().clamp_min(1e-3))
+        rig = float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
+        if rig > 1e-6:
+            return rig
+        return max(0.5 * float((self.bounds_max - self.bounds_min).float().norm()), 1e-3)
 
 
 class Backbone(torch.nn.Module):

@@ -124,3 +124,16 @@ class TestEndToEnd:
         restored, _ = load_trained(trainer.checkpoint_path(), scene=voxel_scene)
         assert restored.step == 5
         assert restored.evaluate()["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
+
+
+class TestSceneExtent:
+    def test_single_camera_falls_back_to_scene_diagonal(self, voxel_scene):
+        info = voxel_scene.scene_info()
+        info.train_cameras = info.train_cameras[:1]
+        expected = 0.5 * float((info.bounds_max - info.bounds_min).norm())
+        assert info.extent == pytest.approx(expected)
+
+    def test_rig_radius_with_several_cameras(self, voxel_scene):
+        info = voxel_scene.scene_info()
+        centers = torch.stack([c.center for c in info.train_cameras])
+        assert info.extent == pytest.approx(1.1 * float((centers - centers.mean(0)).norm(dim=-1).max()))
