@@ -237,9 +237,16 @@ class Trainer:
     # --------------------------------------------------------------- evaluation
     @torch.no_grad()
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
-        return evaluate(self.backbone, self.method, self.scene, self.backbone_name, self.config,
-                        steps=self.step, train_seconds=self.train_seconds,
-                        render_dir=self.config.out / "renders" if save_renders else None)
+        """Test-view metrics with backbone and method in eval mode, back to training after."""
+        self.backbone.eval()
+        self.method.eval()
+        try:
+            return evaluate(self.backbone, self.method, self.scene, self.backbone_name, self.config,
+                            steps=self.step, train_seconds=self.train_seconds,
+                            render_dir=self.config.out / "renders" if save_renders else None)
+        finally:
+            self.backbone.train()
+            self.method.train()
 
     # -------------------------------------------------------------- checkpoints
     def checkpoint_path(self) -> Path:
