@@ -69,6 +69,9 @@ class Backbone(torch.nn.Module):
         loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
         pixel_batch: None to train on whole images, or the number of rays per step.
         render_chunk: None to render whole images in one call, or the most rays per call.
+
+    A backbone whose parameter shapes change while training (3DGS densification) overrides
+    torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
     """
 
     config_class: ClassVar[type]
@@ -91,13 +94,6 @@ class Backbone(torch.nn.Module):
 
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         raise NotImplementedError
-
-    def prepare_state_dict(self, state: dict[str, Tensor]) -> None:
-        """Resize parameters to match a checkpoint before loading it (3DGS grows and prunes)."""
-        for name, value in state.items():
-            current = self.get_parameter(name) if name in dict(self.named_parameters()) else None
-            if current is not None and current.shape != value.shape:
-                current.data = torch.empty_like(value)
 
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
         """Called after each optimiser step, before gradients are cleared: densification, ...

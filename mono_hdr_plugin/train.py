@@ -270,7 +270,6 @@ class Trainer:
         """Load model, converters, optimiser and RNG state from a checkpoint payload."""
         if payload["backbone_name"] != self.backbone_name:
             raise ValueError(f"the checkpoint holds a {payload['backbone_name']!r} model, not {self.backbone_name!r}")
-        self.backbone.prepare_state_dict(payload["backbone"])
         self.backbone.load_state_dict(payload["backbone"])
         self.method.load_state_dict(payload["method"])
         _match_optimizer_groups(self.optimizer, self.backbone.parameter_groups() + self.method.parameter_groups())
