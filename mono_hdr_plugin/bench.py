@@ -28,7 +28,7 @@ from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import MethodConfig
 from mono_hdr_plugin.registry import get_backbone
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.train import Trainer, camera_chunks, render_full, train_config_for
 
 console = Console()
 
@@ -67,16 +67,12 @@ def peak_memory_mib() -> float:
 @torch.no_grad()
 def render_fps(trainer: Trainer, repeats: int = 3) -> tuple[float, float]:
     """Frames per second of one test view: LDR only (3 channels) and LDR + HDR (the method)."""
-    from mono_hdr_plugin.train import render_full  # noqa: PLC0415
 
     view = trainer.scene.test[0]
     camera = view.camera
 
     def ldr_only():
-        chunk = trainer.backbone.render_chunk
-        cameras = [camera] if chunk is None else [
-            camera.with_pixels(p) for p in camera.pixel_centers().split(chunk)]
-        for part in cameras:
+        for part in camera_chunks(trainer.backbone, camera):
             features = trainer.backbone.render_ldr_features(part)
             features.composite(features.colors)
 

@@ -98,14 +98,18 @@ def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
     return [i in chosen for i in range(num_views)]
 
 
+def camera_chunks(backbone: Backbone, camera: Camera) -> list[Camera]:
+    """The camera split into pixel batches of `backbone.render_chunk` rays (whole if None)."""
+    if backbone.render_chunk is None:
+        return [camera]
+    return [camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(backbone.render_chunk)]
+
+
 def render_full(backbone: Backbone, method: HdrMethod, camera: Camera, exposure: float) -> MethodOutput:
     """Render a whole image, in chunks of `backbone.render_chunk` rays when the backbone asks."""
-    chunk = backbone.render_chunk
-    if chunk is None:
+    if backbone.render_chunk is None:
         return method(backbone.render_ldr_features(camera), exposure)
-    pixels = camera.pixel_centers()
-    parts = [method(backbone.render_ldr_features(camera.with_pixels(pixels[i:i + chunk])), exposure)
-             for i in range(0, pixels.shape[0], chunk)]
+    parts = [method(backbone.render_ldr_features(part), exposure) for part in camera_chunks(backbone, camera)]
     shape = (camera.height, camera.width, 3)
     return MethodOutput(ldr=torch.cat([p.ldr for p in parts]).reshape(shape),
                         hdr=torch.cat([p.hdr for p in parts]).reshape(shape))
