@@ -103,7 +103,7 @@ class PlainH2L(nn.Module):
 class PerChannelCRF(nn.Module):
     """Learned camera response per channel: log exposure [..., 3] -> LDR [..., 3] in (0, 1).
 
-    The tone mapper of HDR-NeRF (per sample) and HDR-GS (per pixel): 1 -> hidden -> 1, Sigmoid.
+    The tone mapper of HDR-NeRF (per sample) and HDR-GS (per Gaussian): 1 -> hidden -> 1, Sigmoid.
     """
 
     def __init__(self, hidden: int = 128):

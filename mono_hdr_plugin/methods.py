@@ -32,7 +32,8 @@ class MethodConfig:
 
     method: MethodName = "mono"
     """mono (L2H-CC + H2L-CC), the ablations mlp-l2h / mlp-h2l / no-h2l, or the baselines
-    hdr-nerf (per-sample CRF of ln E + ln dt) and hdr-gs (per-pixel tone mapper)."""
+    hdr-nerf (per-sample CRF of ln E + ln dt, HDR = exp of composited ln E) and hdr-gs
+    (per-Gaussian tone mapper, HDR = composited exp(ln E))."""
     hidden: int = 128
     """Hidden width of the converters and the baselines' CRF networks."""
     use_ldr_loss: bool = True
@@ -146,13 +147,24 @@ class MonoHDR(HdrMethod):
 
 
 class CrfBaseline(HdrMethod):
-    """Shared part of the baselines: colours are log radiance, LDR = CRF(ln E + ln dt)."""
+    """Shared part of the baselines: colours are log radiance ln E, and each primitive's LDR colour is
+    CRF(ln E + ln dt), composited in the same pass as the HDR channels."""
 
     renders_any_exposure = True
+    composite_log_radiance = False
+    """True: composite ln E and exponentiate the image (HDR-NeRF); False: composite E (HDR-GS)."""
 
     def __init__(self, config: MethodConfig, loss_kind: LossKind):
         super().__init__(config, loss_kind)
         self.crf = PerChannelCRF(config.hidden)
+
+    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+        log_radiance = features.raw_colors.clamp(max=MAX_LOG_RADIANCE)
+        ldr_colors = self.crf(log_radiance + math.log(exposure))
+        hdr_colors = log_radiance if self.composite_log_radiance else torch.exp(log_radiance)
+        image = features.composite(torch.cat([ldr_colors, hdr_colors], dim=-1))
+        hdr = torch.exp(image[..., 3:]) if self.composite_log_radiance else image[..., 3:]
+        return MethodOutput(ldr=image[..., :3], hdr=hdr)
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         warmup = self.config.crf_warmup_steps
@@ -160,13 +172,9 @@ class CrfBaseline(HdrMethod):
 
 
 class HdrNerfBaseline(CrfBaseline):
-    """HDR-NeRF style: the CRF is applied to every primitive, then composited with ln E."""
+    """HDR-NeRF style: CRF per sample, ln E composited with the same weights, HDR = exp of that."""
 
-    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
-        log_radiance = features.raw_colors.clamp(max=MAX_LOG_RADIANCE)
-        ldr_colors = self.crf(log_radiance + math.log(exposure))
-        image = features.composite(torch.cat([ldr_colors, log_radiance], dim=-1))
-        return MethodOutput(ldr=image[..., :3], hdr=torch.exp(image[..., 3:]))
+    composite_log_radiance = True
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
         terms = super().losses(output, targets, step)
@@ -177,12 +185,8 @@ class HdrNerfBaseline(CrfBaseline):
 
 
 class HdrGsBaseline(CrfBaseline):
-    """HDR-GS style: composite log radiance, then tone-map each pixel with ln dt."""
-
-    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
-        log_image = features.composite(features.raw_colors.clamp(max=MAX_LOG_RADIANCE))
-        ldr = self.crf(log_image + math.log(exposure))
-        return MethodOutput(ldr=ldr, hdr=torch.exp(log_image))
+    """HDR-GS as its official renderer does it: the tone mapper runs on every Gaussian's ln E + ln dt
+    and the LDR colours are rasterised; the HDR image rasterises each Gaussian's exp(ln E)."""
 
 
 def build_method(config: MethodConfig, loss_kind: LossKind) -> HdrMethod:

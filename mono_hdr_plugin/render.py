@@ -19,12 +19,12 @@ def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
 def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] = (),
                       max_views: int | None = None) -> list[Path]:
     """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view."""
+    for exposure in exposures:  # checked before the (slow) checkpoint load
+        if not exposure > 0:
+            raise ValueError(f"--exposures must be positive seconds, got {exposure}")
     trainer, _ = load_trained(checkpoint)
     scene, method, backbone = trainer.scene, trainer.method, trainer.backbone
     exposures = exposures or tuple(scene.train_exposures)
-    for exposure in exposures:
-        if not exposure > 0:
-            raise ValueError(f"--exposures must be positive seconds, got {exposure}")
     reference_exposure = scene.train_exposures[0]
     seen, written = set(), []
     for view in scene.test:

@@ -1,5 +1,7 @@
 """The one entry point from a DataConfig to a SceneData: files on disk or a studio scene."""
 
+import warnings
+
 import numpy as np
 import torch
 
@@ -64,10 +66,21 @@ def check_same_size(scene: CapturedScene, views: list[View]) -> None:
                            "to one size (and scale the intrinsics with them)")
 
 
+def warn_partial_hdr(scene: CapturedScene) -> None:
+    """Some views with HDR ground truth and some without is almost always a missing EXR file: say which."""
+    lacking = [view.name or str(view.view_id) for view in scene.views if view.hdr is None]
+    if 0 < len(lacking) < len(scene.views):
+        listing = ", ".join(lacking[:5]) + (f" and {len(lacking) - 5} more" if len(lacking) > 5 else "")
+        warnings.warn(f"scene {scene.name!r} ({scene.metadata.get('source', 'in memory')}): {len(lacking)} of "
+                      f"{len(scene.views)} views have no HDR ground truth ({listing}); they get no HDR loss "
+                      "and no HDR metrics. Add their EXR files if they were meant to have them.", stacklevel=2)
+
+
 def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
     """Apply the exposure protocol and --downscale; decode only the chosen photos."""
     if config.downscale < 1:
         raise DatasetError(f"--downscale must be a positive integer, got {config.downscale}")
+    warn_partial_hdr(scene)
     chosen = select_shots(scene, config)
     splits: dict[str, list[View]] = {"train": [], "test": []}
     for view in scene.views:

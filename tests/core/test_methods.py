@@ -106,13 +106,15 @@ class TestBaselines:
         torch.testing.assert_close(out.ldr, expected_ldr)
         torch.testing.assert_close(out.hdr, torch.exp((weights @ features.raw_colors).reshape(12, 12, 3)))
 
-    def test_hdr_gs_tone_maps_pixels(self):
+    def test_hdr_gs_tone_maps_gaussians_and_composites_linear_radiance(self):
+        """As the official HDR-GS renderer: tone mapper per Gaussian, HDR rasterises exp(ln E)."""
         features, calls, weights = fake_features()
         method = HdrGsBaseline(MethodConfig(method="hdr-gs"), "l1_dssim")
         out = method(features, exposure=0.5)
-        log_image = (weights @ features.raw_colors).reshape(12, 12, 3)
-        torch.testing.assert_close(out.ldr, method.crf(log_image + math.log(0.5)))
-        assert calls == [3]
+        assert calls == [6]
+        expected_ldr = (weights @ method.crf(features.raw_colors + math.log(0.5))).reshape(12, 12, 3)
+        torch.testing.assert_close(out.ldr, expected_ldr)
+        torch.testing.assert_close(out.hdr, (weights @ torch.exp(features.raw_colors)).reshape(12, 12, 3))
 
     def test_exposure_changes_baseline_ldr(self):
         features, _, _ = fake_features()

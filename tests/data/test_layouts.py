@@ -285,6 +285,25 @@ class TestDetectionAndLoading:
         assert len(data.train) == 6 and data.train[0].hdr is not None
 
 
+class TestPartialHdr:
+    @pytest.mark.parametrize("written", ["hdr-nerf-synthetic", "hdr-gs"], indirect=True)
+    def test_missing_exr_is_named_in_a_warning(self, written):
+        exr = sorted(written.rglob("*.exr"))[1]
+        exr.unlink()
+        with pytest.warns(UserWarning, match=r"1 of 12 views have no HDR ground truth \(.*\); .*Add their EXR"):
+            data = load_scene(DataConfig(data=written))
+        assert sum(v.hdr is None for v in data.train + data.test) > 0
+
+    @pytest.mark.parametrize("written", ["hdr-nerf-synthetic"], indirect=True)
+    def test_complete_or_absent_hdr_is_silent(self, written, recwarn):
+        load_scene(DataConfig(data=written))
+        for exr in written.rglob("*.exr"):
+            exr.unlink()
+        data = load_scene(DataConfig(data=written))
+        assert all(v.hdr is None for v in data.train + data.test)
+        assert not [w for w in recwarn if "HDR ground truth" in str(w.message)]
+
+
 class TestSynth:
     @pytest.mark.parametrize("layout", ["hdr-nerf", "hdr-gs"])
     def test_written_scene_reads_back_identically(self, tmp_path, tiny_demo, layout, monkeypatch):

@@ -199,11 +199,11 @@ def test_eval_and_render_of_missing_checkpoint(tmp_path, command):
         main([command, "--checkpoint", str(tmp_path / "gone.pt"), "--out", str(tmp_path / "out")])
 
 
-def test_render_non_positive_exposure(tmp_path, data):
-    main(train_args(data, tmp_path / "run"))
+def test_render_non_positive_exposure_is_refused_before_loading(tmp_path):
+    """The exposure check comes first: a missing checkpoint would otherwise be reported instead."""
     with pytest.raises(ValueError, match="--exposures must be positive seconds, got 0.0"):
-        main(["render", "--checkpoint", str(tmp_path / "run" / "checkpoints" / "latest.pt"),
-              "--out", str(tmp_path / "r"), "--exposures", "0"])
+        main(["render", "--checkpoint", str(tmp_path / "not-yet-loaded.pt"), "--out", str(tmp_path / "r"),
+              "--exposures", "1", "0"])
 
 
 # ------------------------------------------------------------------------ checkpoints
