@@ -32,8 +32,8 @@ class MethodConfig:
 
     method: MethodName = "mono"
     """mono (L2H-CC + H2L-CC), the ablations mlp-l2h / mlp-h2l / no-h2l, or the baselines
-    hdr-nerf (per-sample CRF of ln E + ln dt, HDR = exp of composited ln E) and hdr-gs
-    (per-Gaussian tone mapper, HDR = composited exp(ln E))."""
+    hdr-nerf and hdr-gs (CRF of ln E + ln dt per sample / Gaussian, HDR composites exp(ln E);
+    hdr-nerf adds the unit-exposure loss)."""
     hidden: int = 128
     """Hidden width of the converters and the baselines' CRF networks."""
     use_ldr_loss: bool = True
@@ -57,7 +57,7 @@ class MethodConfig:
     unit_exposure_value: float = 0.5
     """HDR-NeRF: CRF output at unit exposure (0.5 synthetic, 0.73 real scenes)."""
     crf_warmup_steps: int = 500
-    """Baselines: the CRF learning rate ramps up linearly over these first steps."""
+    """HDR-NeRF: the CRF learning rate ramps up linearly over these first steps (HDR-GS has no warm-up)."""
 
 
 @dataclass
@@ -147,12 +147,10 @@ class MonoHDR(HdrMethod):
 
 
 class CrfBaseline(HdrMethod):
-    """Shared part of the baselines: colours are log radiance ln E, and each primitive's LDR colour is
-    CRF(ln E + ln dt), composited in the same pass as the HDR channels."""
+    """Both baselines as their official renderers do it: colours are log radiance ln E; each primitive
+    (NeRF sample, Gaussian) gets LDR = CRF(ln E + ln dt) and HDR = exp(ln E), composited in one pass."""
 
     renders_any_exposure = True
-    composite_log_radiance = False
-    """True: composite ln E and exponentiate the image (HDR-NeRF); False: composite E (HDR-GS)."""
 
     def __init__(self, config: MethodConfig, loss_kind: LossKind):
         super().__init__(config, loss_kind)
@@ -161,20 +159,13 @@ class CrfBaseline(HdrMethod):
     def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
         log_radiance = features.raw_colors.clamp(max=MAX_LOG_RADIANCE)
         ldr_colors = self.crf(log_radiance + math.log(exposure))
-        hdr_colors = log_radiance if self.composite_log_radiance else torch.exp(log_radiance)
-        image = features.composite(torch.cat([ldr_colors, hdr_colors], dim=-1))
-        hdr = torch.exp(image[..., 3:]) if self.composite_log_radiance else image[..., 3:]
-        return MethodOutput(ldr=image[..., :3], hdr=hdr)
-
-    def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
-        warmup = self.config.crf_warmup_steps
-        return base_lr if warmup <= 0 else base_lr * min(1.0, (step + 1) / warmup)
+        image = features.composite(torch.cat([ldr_colors, torch.exp(log_radiance)], dim=-1))
+        return MethodOutput(ldr=image[..., :3], hdr=image[..., 3:])
 
 
 class HdrNerfBaseline(CrfBaseline):
-    """HDR-NeRF style: CRF per sample, ln E composited with the same weights, HDR = exp of that."""
-
-    composite_log_radiance = True
+    """HDR-NeRF: the shared baseline plus its unit-exposure loss pinning the CRF at ln dt = 0 and
+    its CRF learning-rate warm-up."""
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
         terms = super().losses(output, targets, step)
@@ -183,10 +174,13 @@ class HdrNerfBaseline(CrfBaseline):
             (unit - self.config.unit_exposure_value) ** 2)
         return terms
 
+    def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
+        warmup = self.config.crf_warmup_steps
+        return base_lr if warmup <= 0 else base_lr * min(1.0, (step + 1) / warmup)
+
 
 class HdrGsBaseline(CrfBaseline):
-    """HDR-GS as its official renderer does it: the tone mapper runs on every Gaussian's ln E + ln dt
-    and the LDR colours are rasterised; the HDR image rasterises each Gaussian's exp(ln E)."""
+    """HDR-GS: the shared baseline (tone mapper per Gaussian, HDR rasterises exp(ln E)) and nothing else."""
 
 
 def build_method(config: MethodConfig, loss_kind: LossKind) -> HdrMethod:

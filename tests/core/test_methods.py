@@ -104,7 +104,7 @@ class TestBaselines:
         assert calls == [6]
         expected_ldr = (weights @ method.crf(features.raw_colors + math.log(2.0))).reshape(12, 12, 3)
         torch.testing.assert_close(out.ldr, expected_ldr)
-        torch.testing.assert_close(out.hdr, torch.exp((weights @ features.raw_colors).reshape(12, 12, 3)))
+        torch.testing.assert_close(out.hdr, (weights @ torch.exp(features.raw_colors)).reshape(12, 12, 3))
 
     def test_hdr_gs_tone_maps_gaussians_and_composites_linear_radiance(self):
         """As the official HDR-GS renderer: tone mapper per Gaussian, HDR rasterises exp(ln E)."""
@@ -132,6 +132,8 @@ class TestBaselines:
         method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", crf_warmup_steps=100), "mse")
         assert method.learning_rate("method", 0, 1.0) == pytest.approx(0.01)
         assert method.learning_rate("method", 500, 1.0) == 1.0
+        assert HdrGsBaseline(MethodConfig(method="hdr-gs", crf_warmup_steps=100), "l1_dssim").learning_rate(
+            "method", 0, 1.0) == 1.0  # HDR-GS's recipe has no warm-up
 
     def test_huge_log_radiance_stays_finite(self):
         features, _, _ = fake_features()
