@@ -9,20 +9,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from mono_hdr_plugin.data.io import write_png
+from mono_hdr_plugin.metrics import normalise_hdr
 from mono_hdr_plugin.studio.capture import capture
 from mono_hdr_plugin.studio.dataset import get_scene
 from mono_hdr_plugin.studio.render import render_scene
-
-MU = 5000.0
-
-
-def mu_law_tonemap(hdr: np.ndarray) -> np.ndarray:
-    """The HDR metric's tone map: mu-law (mu = 5000) of the image divided by its maximum."""
-    normalised = np.clip(hdr / max(float(hdr.max()), 1e-12), 0.0, 1.0)
-    return np.log1p(MU * normalised) / np.log1p(MU)
-
 
 def upscale(image: np.ndarray, factor: int) -> np.ndarray:
     """Nearest-neighbour enlargement, so small renders stay crisp in the README."""
@@ -40,7 +33,7 @@ def write_figures(scene_name: str = "demo", out: Path = Path("docs"), view: int 
         paths.append(out / f"studio_{scene_name}_{label}.png")
         write_png(paths[-1], upscale(photo, factor))
     paths.append(out / f"studio_{scene_name}_hdr.png")
-    write_png(paths[-1], upscale(mu_law_tonemap(radiance), factor))
+    write_png(paths[-1], upscale(normalise_hdr(torch.from_numpy(radiance)).numpy(), factor))  # as the HDR metric sees it
     return paths
 
 

@@ -139,6 +139,23 @@ class TestStudioDataset:
             to_scene_data(studio_captured_scene(tiny_demo), DataConfig(exposure_index=4))
 
 
+class TestFigures:
+    def test_hdr_figure_is_what_the_hdr_metric_sees(self, tmp_path, tiny_demo):
+        from mono_hdr_plugin.data.io import read_image
+        from mono_hdr_plugin.metrics import normalise_hdr
+        from mono_hdr_plugin.studio import figures
+
+        with mock.patch.object(figures, "get_scene", return_value=tiny_demo):
+            paths = figures.write_figures("demo", tmp_path, factor=2)
+        assert [p.name for p in paths] == [f"studio_demo_{s}.png" for s in ("t1", "t3", "t5", "hdr")]
+        hdr_png = read_image(paths[-1])
+        assert hdr_png.shape == (48, 48, 3)
+        expected = normalise_hdr(torch.from_numpy(render_scene(tiny_demo).radiance[0])).numpy()
+        np.testing.assert_allclose(hdr_png[::2, ::2], expected, atol=0.5 / 255 + 1e-6)
+        t1, t5 = read_image(paths[0]), read_image(paths[2])
+        assert t1.mean() < t5.mean()  # the shortest exposure is the darkest
+
+
 @pytest.mark.slow
 class TestBuiltinScenesFull:
     @pytest.mark.parametrize("name", sorted(SCENES))
