@@ -112,9 +112,11 @@ def test_real_layout_near_beyond_far_names_the_row(tmp_path):
 
 
 def test_missing_hdr_ground_truth_trains_that_view_on_ldr_only(data):
-    """HDR ground truth is optional per view (LDR:HDR ratios): a missing EXR is not an error."""
+    """HDR ground truth is optional per view (LDR:HDR ratios): a missing EXR is a warning naming
+    the view, not an error."""
     (data / "train_hdr" / "hdr_000.exr").unlink()
-    scene = load_scene(DataConfig(data=data))
+    with pytest.warns(UserWarning, match=r"1 of 6 views have no HDR ground truth \(\./train/r_0\)"):
+        scene = load_scene(DataConfig(data=data))
     assert scene.train[0].hdr is None and scene.train[1].hdr is not None
 
 
