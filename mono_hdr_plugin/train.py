@@ -107,8 +107,6 @@ def camera_chunks(backbone: Backbone, camera: Camera) -> list[Camera]:
 
 def render_full(backbone: Backbone, method: HdrMethod, camera: Camera, exposure: float) -> MethodOutput:
     """Render a whole image, in chunks of `backbone.render_chunk` rays when the backbone asks."""
-    if backbone.render_chunk is None:
-        return method(backbone.render_ldr_features(camera), exposure)
     parts = [method(backbone.render_ldr_features(part), exposure) for part in camera_chunks(backbone, camera)]
     shape = (camera.height, camera.width, 3)
     return MethodOutput(ldr=torch.cat([p.ldr for p in parts]).reshape(shape),

@@ -9,7 +9,10 @@ import torch
 
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.io import read_image
 from mono_hdr_plugin.data.loading import load_scene, scene_names, to_scene_data
+from mono_hdr_plugin.metrics import normalise_hdr
+from mono_hdr_plugin.studio import figures
 from mono_hdr_plugin.studio import render as render_module
 from mono_hdr_plugin.studio.commands import ScenesConfig, list_scenes, list_scenes_command
 from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
@@ -141,10 +144,6 @@ class TestStudioDataset:
 
 class TestFigures:
     def test_hdr_figure_is_what_the_hdr_metric_sees(self, tmp_path, tiny_demo):
-        from mono_hdr_plugin.data.io import read_image
-        from mono_hdr_plugin.metrics import normalise_hdr
-        from mono_hdr_plugin.studio import figures
-
         with mock.patch.object(figures, "get_scene", return_value=tiny_demo):
             paths = figures.write_figures("demo", tmp_path, factor=2)
         assert [p.name for p in paths] == [f"studio_demo_{s}.png" for s in ("t1", "t3", "t5", "hdr")]
