@@ -72,6 +72,9 @@ class Backbone(torch.nn.Module):
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
+    Everything else that shapes a render must reach `state_dict()` too, as a buffer or through
+    torch's `get_extra_state`/`set_extra_state` (3DGS: the active SH degree): checkpoints hold
+    the state dict and nothing else of the backbone.
     """
 
     config_class: ClassVar[type]

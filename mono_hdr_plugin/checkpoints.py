@@ -13,7 +13,12 @@ from mono_hdr_plugin import __version__
 from mono_hdr_plugin.data.io import atomic_path
 
 CHECKPOINT_FORMAT = "mono-hdr-3d checkpoint"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+# Why each older version cannot be read, so the refusal names what went wrong.
+RETIRED_VERSIONS = {
+    1: "version 1 did not save state outside the parameters (3DGS's active SH degree): its 3DGS "
+       "models would load and render without view-dependent colour",
+}
 
 
 class CheckpointError(RuntimeError):
@@ -81,9 +86,11 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
                               "it is truncated or not a mono-hdr-3d checkpoint") from error
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path} is not a mono-hdr-3d checkpoint")
-    if payload.get("format_version") != CHECKPOINT_VERSION:
+    version = payload.get("format_version")
+    if version != CHECKPOINT_VERSION:
+        reason = f" ({RETIRED_VERSIONS[version]})" if version in RETIRED_VERSIONS else ""
         raise CheckpointError(
-            f"checkpoint {path} has format version {payload.get('format_version')} (written by "
-            f"mono-hdr-3d {payload.get('package_version')}), this is mono-hdr-3d {__version__} which "
-            f"reads version {CHECKPOINT_VERSION}: retrain, or install the version that wrote it")
+            f"checkpoint {path} has format version {version} (written by mono-hdr-3d "
+            f"{payload.get('package_version')}), this is mono-hdr-3d {__version__} which reads version "
+            f"{CHECKPOINT_VERSION}{reason}: retrain, or install the version that wrote it")
     return payload

@@ -4,6 +4,7 @@ from pathlib import Path
 
 import torch
 
+from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import write_exr, write_png
 from mono_hdr_plugin.metrics import normalise_hdr
 from mono_hdr_plugin.train import load_trained, render_full
@@ -17,12 +18,13 @@ def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] = (),
-                      max_views: int | None = None) -> list[Path]:
-    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view."""
+                      max_views: int | None = None, scene: SceneData | None = None) -> list[Path]:
+    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view
+    of the checkpoint's own data (or of `scene`, an in-memory scene)."""
     for exposure in exposures:  # checked before the (slow) checkpoint load
         if not exposure > 0:
             raise ValueError(f"--exposures must be positive seconds, got {exposure}")
-    trainer, _ = load_trained(checkpoint)
+    trainer, _ = load_trained(checkpoint, scene=scene)
     scene, method, backbone = trainer.scene, trainer.method, trainer.backbone
     exposures = exposures or tuple(scene.train_exposures)
     reference_exposure = scene.train_exposures[0]
@@ -33,7 +35,7 @@ def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] 
         seen.add(view.view_id)
         if max_views is not None and len(seen) > max_views:
             break
-        stem = view.name or f"view_{view.view_id:03d}"
+        stem = view.stem
         base = render_full(backbone, method, view.camera, reference_exposure)
         written += [out / f"{stem}_hdr.exr", out / f"{stem}_hdr_mulaw.png"]
         write_exr(written[-2], base.hdr.float().numpy())

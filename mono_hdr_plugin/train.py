@@ -352,7 +352,7 @@ def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> Non
     from mono_hdr_plugin.data.io import write_exr, write_png  # noqa: PLC0415 - keeps import light
     from mono_hdr_plugin.metrics import normalise_hdr  # noqa: PLC0415
 
-    stem = view.name or f"view_{view.view_id:03d}"
+    stem = view.stem
     write_exr(render_dir / f"{stem}_hdr.exr", output.hdr.float().numpy())
     write_png(render_dir / f"{stem}_ldr.png", output.ldr.clamp(0, 1).numpy())
     write_png(render_dir / f"{stem}_hdr_mulaw.png", normalise_hdr(output.hdr).numpy())

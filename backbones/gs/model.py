@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
-from backbones.gs.strategy import DensityControl, DensityControlSchedule
+from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
 
@@ -210,6 +210,18 @@ class GaussianBackbone(Backbone):
             if name not in tensors:
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
+
+    def get_extra_state(self) -> dict:
+        """State outside the parameters that shapes renders and training: the active SH degree
+        (a model loaded without it renders with degree 0) and the density statistics."""
+        state = self.density_control.state
+        return {"active_sh_degree": self.active_sh_degree, "grad2d_sum": state.grad2d_sum,
+                "visible_count": state.visible_count, "max_radii": state.max_radii}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.active_sh_degree = int(state["active_sh_degree"])
+        self.density_control.state = DensityControlState(
+            state["grad2d_sum"].clone(), state["visible_count"].clone(), state["max_radii"].clone())
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # densification changes N: take the checkpoint's shapes before loading values

@@ -1,6 +1,7 @@
 """In-memory datasets: views (one LDR image at one exposure, optional HDR) grouped in splits."""
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -23,8 +24,13 @@ class View:
     view_id: int
     name: str = ""
     hdr: Tensor | None = None
+    stem: str = ""
+    """File-name stem of this view's renders, `<view>_t<level>` (`r_0_t3`: view r_0 at exposure
+    level t3); empty: derived from name or view_id."""
 
     def __post_init__(self):
+        if not self.stem:
+            self.stem = Path(self.name).stem if self.name else f"view_{self.view_id:03d}"
         label = self.name or f"view {self.view_id}"
         expected = (self.camera.height, self.camera.width, 3)
         if tuple(self.image.shape) != expected:

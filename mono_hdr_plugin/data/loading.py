@@ -1,6 +1,7 @@
 """The one entry point from a DataConfig to a SceneData: files on disk or a studio scene."""
 
 import warnings
+from pathlib import PurePosixPath
 
 import numpy as np
 import torch
@@ -45,14 +46,21 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
     return blocks.mean(axis=(1, 3), dtype=np.float32)
 
 
-def _views(view: CapturedView, shots: list[Shot], factor: int) -> list[View]:
+def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float]) -> list[View]:
     camera = view.camera.scaled(1.0 / factor) if factor > 1 else view.camera
     hdr = None
     if view.hdr is not None:
         hdr = torch.from_numpy(downscale_image(view.hdr(), factor, view.name))
+    token = PurePosixPath(view.name).name or f"{view.view_id:03d}"
     return [View(camera=camera, image=torch.from_numpy(downscale_image(shot.image(), factor, shot.name)),
-                 exposure=float(shot.exposure), view_id=view.view_id, name=shot.name, hdr=hdr)
+                 exposure=float(shot.exposure), view_id=view.view_id, name=shot.name, hdr=hdr,
+                 stem=f"{token}_t{exposure_level(levels, shot.exposure)}")
             for shot in shots]
+
+
+def exposure_level(levels: list[float], exposure: float) -> int:
+    """1-based index of `exposure` among the scene's exposure levels (t1, t2, ...)."""
+    return 1 + int(np.argmin(np.abs(np.log(np.asarray(levels)) - np.log(exposure))))
 
 
 def check_same_size(scene: CapturedScene, views: list[View]) -> None:
@@ -84,7 +92,7 @@ def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
     chosen = select_shots(scene, config)
     splits: dict[str, list[View]] = {"train": [], "test": []}
     for view in scene.views:
-        splits[view.split].extend(_views(view, chosen[id(view)], config.downscale))
+        splits[view.split].extend(_views(view, chosen[id(view)], config.downscale, scene.exposure_levels))
     check_same_size(scene, splits["train"] + splits["test"])
     metadata = {**scene.metadata, "protocol": config.protocol,
                 "exposure_levels": scene.exposure_levels}

@@ -158,6 +158,15 @@ def train_and_check(trainer: Trainer, steps: int) -> dict:
         assert ok, f"{key} = {value}"
     payload = load_checkpoint(trainer.checkpoint_path())
     for part in ("backbone", "method"):
-        for name, tensor in payload[part].items():
+        for name, tensor in _tensors(payload[part]):
             assert not tensor.is_floating_point() or torch.isfinite(tensor).all(), f"checkpoint {part}.{name}"
     return metrics
+
+
+def _tensors(state: dict, prefix: str = ""):
+    """(name, tensor) of a state dict, including those inside a module's extra state."""
+    for name, value in state.items():
+        if isinstance(value, dict):
+            yield from _tensors(value, f"{prefix}{name}.")
+        elif isinstance(value, torch.Tensor):
+            yield prefix + name, value
