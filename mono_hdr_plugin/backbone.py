@@ -87,8 +87,17 @@ class Backbone(torch.nn.Module):
         self.config = config
         self.max_steps = 30_000
 
+    @classmethod
+    def presets(cls) -> dict[str, Any]:
+        """Named configurations of this backbone (`--preset NAME`); the first one is the default."""
+        return {"default": cls.config_class()}
+
     def set_run_length(self, max_steps: int) -> None:
-        """Told by the trainer before step 0, so schedules (densification) scale to the run."""
+        """Told by the trainer before step 0, so schedules (densification) scale to the run.
+
+        Under a time budget (`--max-seconds`) the trainer calls it again while training with its
+        latest estimate of the steps that fit: rescale schedules, keep all learned state.
+        """
         self.max_steps = max_steps
 
     def parameter_groups(self) -> list[dict]:

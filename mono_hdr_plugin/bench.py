@@ -109,7 +109,8 @@ class RunSpec:
 def build_run(spec: RunSpec, scene: SceneData, max_steps: int, out: Path, max_eval_views: int | None) -> Trainer:
     backbone_class = get_backbone(spec.backbone)
     config_class = backbone_class.config_class
-    backbone_config = config_class.preset(spec.preset) if spec.preset and hasattr(config_class, "preset") else config_class()
+    presets = backbone_class.presets()
+    backbone_config = presets[spec.preset or next(iter(presets))]
     use_ldr, use_hdr, use_h2l = spec.losses
     config = train_config_for(config_class)(
         backbone=backbone_config, preset=spec.preset, max_steps=max_steps, out=out, quiet=True, save_renders=False,

@@ -49,17 +49,30 @@ class BackbonesConfig:
     """List every backbone with where it came from."""
 
 
+@dataclass
+class PresetChoice:
+    """The first pass of `mono-hdr train`: which preset gives the defaults of the second."""
+
+    preset: str | None = None
+
+
 def command_train(argv: list[str]) -> None:
     from mono_hdr_plugin.registry import available_backbones  # noqa: PLC0415
     from mono_hdr_plugin.train import build_trainer, train_config_for  # noqa: PLC0415
 
     backbones = available_backbones()
-    preset = _scan_preset(argv)
+    # A preset changes the defaults of other flags, so tyro parses it first, alone.
+    choice, _ = tyro.cli(PresetChoice, args=[a for a in argv if a not in ("-h", "--help")],
+                         return_unknown_args=True, prog="mono-hdr train")
+    backbone_arg = next((a for a in argv if a in backbones), None)
     defaults = {}
     for name, entry in backbones.items():
-        config_class = entry.backbone_class.config_class
-        backbone_defaults = config_class.preset(preset) if preset and hasattr(config_class, "preset") else config_class()
-        defaults[name] = train_config_for(config_class)(backbone=backbone_defaults, preset=preset)
+        presets = entry.backbone_class.presets()
+        preset = choice.preset if name == backbone_arg and choice.preset is not None else next(iter(presets))
+        if preset not in presets:
+            raise ValueError(f"--preset {preset!r} is not a preset of backbone {name!r}; choose one of "
+                             f"{', '.join(presets)} (listed by `mono-hdr backbones`)")
+        defaults[name] = train_config_for(entry.backbone_class.config_class)(backbone=presets[preset], preset=preset)
     described = {name: (_first_line(backbones[name].backbone_class.__doc__), default)
                  for name, default in defaults.items()}
     config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
@@ -72,15 +85,6 @@ def command_train(argv: list[str]) -> None:
 
 def _first_line(text: str | None) -> str:
     return (text or "").strip().splitlines()[0] if (text or "").strip() else ""
-
-
-def _scan_preset(argv: list[str]) -> str | None:
-    for index, arg in enumerate(argv):
-        if arg == "--preset" and index + 1 < len(argv):
-            return argv[index + 1]
-        if arg.startswith("--preset="):
-            return arg.split("=", 1)[1]
-    return None
 
 
 def command_eval(config: EvalConfig) -> None:
@@ -116,14 +120,14 @@ def command_backbones(config: BackbonesConfig) -> None:
     from mono_hdr_plugin.registry import available_backbones, broken_plugins  # noqa: PLC0415
 
     table = Table(title="mono-hdr backbones")
-    for column in ("name", "class", "source", "loss", "rays per step"):
+    for column in ("name", "class", "source", "presets (first: default)", "loss", "rays per step"):
         table.add_column(column)
     for name, entry in available_backbones().items():
         cls = entry.backbone_class
-        table.add_row(name, f"{cls.__module__}.{cls.__qualname__}", entry.source, cls.loss_kind,
-                      "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
+        table.add_row(name, f"{cls.__module__}.{cls.__qualname__}", entry.source, ", ".join(cls.presets()),
+                      cls.loss_kind, "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
     for name, reason in broken_plugins().items():
-        table.add_row(f"[red]{name}", "[red]broken", reason, "", "")
+        table.add_row(f"[red]{name}", "[red]broken", reason, "", "", "")
     console.print(table)
 
 

@@ -4,6 +4,7 @@ import dataclasses
 import json
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -25,6 +26,11 @@ from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, 
 from mono_hdr_plugin.registry import get_backbone
 
 console = Console(stderr=True)
+# Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
+# compilation and caches), estimate again every this many steps, over this many recent steps.
+RUN_LENGTH_WARMUP = 5
+RUN_LENGTH_EVERY = 25
+RUN_LENGTH_WINDOW = 50
 
 
 @dataclass
@@ -35,9 +41,13 @@ class TrainConfig:
     data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DataConfig)
     hdr: Annotated[MethodConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=MethodConfig)
     preset: str | None = None
-    """Start from a named preset of the backbone (nerf: paper | fast); other flags override it."""
+    """Start from a named preset of the backbone (listed by `mono-hdr backbones`; default: its
+    first); other flags override it."""
     max_steps: int = 3000
-    """Optimiser steps."""
+    """Optimiser steps (the run ends here or at --max-seconds, whichever comes first)."""
+    max_seconds: float | None = None
+    """Stop after this many seconds of training (evaluation and checkpoints not counted).
+    Schedules scale to the steps that fit, estimated from the measured step time."""
     out: Path = Path("outputs/run")
     """Output folder: checkpoints/, renders/, metrics.json."""
     resume: bool = False
@@ -82,6 +92,8 @@ def check_train_config(config: TrainConfig) -> None:
         value = getattr(config, name)
         if value < minimum:
             raise ValueError(f"--{name.replace('_', '-')} must be an integer >= {minimum}, got {value}")
+    if config.max_seconds is not None and not (math.isfinite(config.max_seconds) and config.max_seconds > 0):
+        raise ValueError(f"--max-seconds must be a positive number of seconds, got {config.max_seconds}")
     if config.max_eval_views is not None and config.max_eval_views < 1:
         raise ValueError(f"--max-eval-views must be >= 1 (or omitted for all views), got {config.max_eval_views}")
     parse_view_ratio(config.hdr_view_ratio)
@@ -122,7 +134,8 @@ class Trainer:
         torch.manual_seed(config.seed)
         backbone_class = get_backbone(backbone_name)
         self.backbone: Backbone = backbone_class(config.backbone, scene.scene_info())
-        self.backbone.set_run_length(config.max_steps)
+        self.run_length = config.max_steps
+        self.backbone.set_run_length(self.run_length)
         ldr_share, _ = parse_view_ratio(config.hdr_view_ratio)
         method_config = config.hdr
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
@@ -137,7 +150,27 @@ class Trainer:
         self.view_order: list[int] = []
         self.step = 0
         self.train_seconds = 0.0
+        self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
+
+    @property
+    def finished(self) -> bool:
+        """--max-steps reached, or --max-seconds of training spent."""
+        budget = self.config.max_seconds
+        return self.step >= self.config.max_steps or (budget is not None and self.train_seconds >= budget)
+
+    def _update_run_length(self) -> None:
+        """Under --max-seconds, re-estimate the steps that fit from the recent step time and tell
+        the backbone when the estimate moved, so its schedules end with the budget."""
+        budget = self.config.max_seconds
+        if budget is None or self.step < RUN_LENGTH_WARMUP or self.step % RUN_LENGTH_EVERY not in (0, RUN_LENGTH_WARMUP):
+            return
+        per_step = sum(self.recent_step_seconds) / len(self.recent_step_seconds)
+        remaining = max(budget - self.train_seconds, 0.0)
+        estimate = min(self.config.max_steps, self.step + max(1, int(remaining / per_step)))
+        if abs(estimate - self.run_length) > 0.02 * self.run_length:
+            self.run_length = estimate
+            self.backbone.set_run_length(estimate)
 
     # ----------------------------------------------------------------- training
     def _next_view(self) -> int:
@@ -191,7 +224,10 @@ class Trainer:
             self.backbone.after_step(self.step, features, self.optimizer)
             self.optimizer.zero_grad(set_to_none=True)
         self.step += 1
-        self.train_seconds += time.perf_counter() - started
+        elapsed = time.perf_counter() - started
+        self.train_seconds += elapsed
+        self.recent_step_seconds.append(elapsed)
+        self._update_run_length()
         record = {name: value.item() for name, value in terms.items()}
         record["loss"] = loss.item()
         record["ldr_psnr"] = psnr(output.ldr.detach().clamp(0, 1), targets.ldr)
@@ -207,9 +243,9 @@ class Trainer:
                             TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
                             TimeElapsedColumn(), console=console, disable=config.quiet)
         with progress:
-            task = progress.add_task(f"{self.backbone_name}/{config.hdr.method}", total=config.max_steps,
+            task = progress.add_task(f"{self.backbone_name}/{config.hdr.method}", total=self.run_length,
                                      completed=self.step, loss=math.nan, psnr=math.nan)
-            while self.step < config.max_steps:
+            while not self.finished:
                 record = self.train_step()
                 if record["skipped"]:
                     failures += 1
@@ -223,8 +259,9 @@ class Trainer:
                             "rates or check the data for NaN/Inf")
                     continue
                 failures = 0
-                progress.update(task, completed=self.step, loss=record["loss"], psnr=record["ldr_psnr"])
-                if config.eval_every and self.step % config.eval_every == 0 and self.step < config.max_steps:
+                progress.update(task, completed=self.step, total=self.run_length, loss=record["loss"],
+                                psnr=record["ldr_psnr"])
+                if config.eval_every and self.step % config.eval_every == 0 and not self.finished:
                     metrics = self.evaluate(save_renders=False)
                     self.history.append(metrics)
                     progress.console.print(f"step {self.step}: HDR PSNR {metrics.get('hdr_psnr', math.nan):.2f} dB, "
@@ -263,6 +300,7 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(),
             "step": self.step,
             "train_seconds": self.train_seconds,
+            "run_length": self.run_length,
             "generator": self.generator.get_state(),
             "torch_rng": torch.get_rng_state(),
             "view_order": torch.tensor(self.view_order, dtype=torch.long),
@@ -278,6 +316,9 @@ class Trainer:
         self.optimizer.load_state_dict(payload["optimizer"])
         self.step = payload["step"]
         self.train_seconds = payload["train_seconds"]
+        if self.config.max_seconds is not None:  # keep the schedule the time budget had scaled to
+            self.run_length = min(payload["run_length"], self.config.max_steps)
+            self.backbone.set_run_length(self.run_length)
         self.generator.set_state(payload["generator"])
         torch.set_rng_state(payload["torch_rng"])
         self.view_order = payload["view_order"].tolist()

@@ -136,9 +136,17 @@ class GaussianBackbone(Backbone):
                               percent_dense=c.percent_dense, prune_opacity=c.prune_opacity,
                               max_screen_size=c.max_screen_size, max_gaussians=c.max_gaussians)
 
+    @classmethod
+    def presets(cls) -> dict[str, GaussianConfig]:
+        """paper: the official 3DGS recipe (30k steps, scaled to the run length)."""
+        return {"paper": GaussianConfig()}
+
     def set_run_length(self, max_steps: int) -> None:
         super().set_run_length(max_steps)
+        statistics = self.density_control.state if hasattr(self, "density_control") else None
         self.density_control = self._density_control()
+        if statistics is not None:  # a time-budget re-estimate must not forget the gathered gradients
+            self.density_control.state = statistics
 
     @property
     def num_gaussians(self) -> int:

@@ -66,6 +66,11 @@ class NerfBackbone(Backbone):
         else:
             raise ValueError(f"NerfConfig.field must be 'paper' or 'fast', got {config.field!r}")
 
+    @classmethod
+    def presets(cls) -> dict[str, NerfConfig]:
+        """fast: grid field with density-grid sampling (CPU default); paper: the official MLP recipe."""
+        return {"fast": NerfConfig(field="fast"), "paper": NerfConfig(field="paper")}
+
     def parameter_groups(self) -> list[dict]:
         if self.config.field == "paper":
             return [{"name": "nerf_mlp", "params": list(self.coarse_field.parameters())

@@ -117,10 +117,3 @@ class NerfConfig:
     composited channels (LDR and HDR alike); black, as in the paper's synthetic scenes."""
     render_chunk: int = 8192
     """Rays rendered at once when a whole image is rendered in pieces (memory bound)."""
-
-    @classmethod
-    def preset(cls, name: Literal["paper", "fast"]) -> "NerfConfig":
-        """The configuration of a named preset: "paper" (faithful) or "fast" (CPU)."""
-        if name not in ("paper", "fast"):
-            raise ValueError(f"unknown NeRF preset {name!r}: use 'paper' or 'fast'")
-        return cls(field=name)

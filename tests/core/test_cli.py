@@ -84,3 +84,41 @@ class TestConsoleEntry:
         assert exit_info.value.code == 2
         out = capsys.readouterr().out
         assert "error:" in out and "latest.pt does not exist" in out and "Traceback" not in out
+
+
+class TestPresets:
+    @pytest.fixture
+    def captured(self, monkeypatch):
+        """The config `mono-hdr train` would train, without training."""
+        import mono_hdr_plugin.train as train_module
+
+        seen = {}
+
+        def capture(config, backbone_name):
+            seen["config"], seen["backbone"] = config, backbone_name
+            raise SystemExit(0)
+
+        monkeypatch.setattr(train_module, "build_trainer", capture)
+        return seen
+
+    def test_preset_gives_the_defaults_and_flags_override_it(self, captured):
+        with pytest.raises(SystemExit):
+            main(["train", "nerf", "--preset", "paper", "--backbone.paper.coarse-samples", "16"])
+        config = captured["config"]
+        assert captured["backbone"] == "nerf" and config.preset == "paper"
+        assert config.backbone.field == "paper" and config.backbone.paper.coarse_samples == 16
+
+    def test_default_preset_is_the_first(self, captured):
+        from backbones.nerf import NerfBackbone
+
+        with pytest.raises(SystemExit):
+            main(["train", "nerf"])
+        assert captured["config"].preset == next(iter(NerfBackbone.presets()))
+
+    def test_unknown_preset_names_the_choices(self):
+        with pytest.raises(ValueError, match="not a preset of backbone 'nerf'.*paper"):
+            main(["train", "nerf", "--preset", "slow"])
+
+    def test_backbones_lists_presets(self, capsys):
+        main(["backbones"])
+        assert "paper" in capsys.readouterr().out

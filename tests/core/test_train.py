@@ -137,3 +137,54 @@ class TestSceneExtent:
         info = voxel_scene.scene_info()
         centers = torch.stack([c.center for c in info.train_cameras])
         assert info.extent == pytest.approx(1.1 * float((centers - centers.mean(0)).norm(dim=-1).max()))
+
+
+class FakeClock:
+    """perf_counter that advances a fixed amount per call: a step of the trainer reads it twice."""
+
+    def __init__(self, seconds_per_call: float):
+        self.now, self.seconds_per_call = 0.0, seconds_per_call
+
+    def perf_counter(self) -> float:
+        self.now += self.seconds_per_call
+        return self.now
+
+
+class TestTimeBudget:
+    @pytest.fixture
+    def half_second_steps(self, monkeypatch):
+        import mono_hdr_plugin.train as train_module
+
+        clock = FakeClock(0.5)
+        monkeypatch.setattr(train_module.time, "perf_counter", clock.perf_counter)
+        return clock
+
+    def test_stops_at_max_seconds_and_scales_schedules(self, tmp_path, voxel_scene, voxel_backbone_config,
+                                                       half_second_steps):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=1000, max_seconds=10.0)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        assert trainer.backbone.max_steps == 1000
+        metrics = trainer.train()
+        assert metrics["steps"] == 20 and metrics["train_seconds"] == pytest.approx(10.0)
+        assert trainer.run_length == 20 and trainer.backbone.max_steps == 20
+
+    def test_max_steps_ends_first(self, tmp_path, voxel_scene, voxel_backbone_config, half_second_steps):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=8, max_seconds=100.0)
+        assert Trainer(config, "voxel-grid", voxel_scene).train()["steps"] == 8
+
+    def test_resume_keeps_the_budget_and_the_schedule(self, tmp_path, voxel_scene, voxel_backbone_config,
+                                                      half_second_steps):
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=1000, max_seconds=10.0)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        for _ in range(12):
+            trainer.train_step()
+        trainer.save()
+        resumed = Trainer(config, "voxel-grid", voxel_scene)
+        resumed.restore(load_checkpoint(trainer.checkpoint_path()))
+        assert resumed.backbone.max_steps == 20 and resumed.train_seconds == pytest.approx(6.0)
+        assert resumed.train()["steps"] == 20
+
+    @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+    def test_bad_budget_names_the_flag(self, tmp_path, voxel_scene, voxel_backbone_config, bad):
+        with pytest.raises(ValueError, match="--max-seconds"):
+            Trainer(make_config(tmp_path, voxel_backbone_config, max_seconds=bad), "voxel-grid", voxel_scene)

@@ -22,9 +22,9 @@ def filled_fast_backbone(scene) -> NerfBackbone:
     return backbone
 
 
-class TestNerfConfig:
+class TestNerfPresets:
     def test_paper_preset_is_the_official_recipe(self):
-        config = NerfConfig.preset("paper")
+        config = NerfBackbone.presets()["paper"]
         paper = config.paper
         assert config.field == "paper"
         assert (paper.depth, paper.width, paper.skip_layer) == (8, 256, 4)
@@ -33,12 +33,10 @@ class TestNerfConfig:
         assert paper.lr == 5e-4
 
     def test_fast_is_the_default(self):
-        assert NerfConfig() == NerfConfig.preset("fast")
+        presets = NerfBackbone.presets()
+        assert next(iter(presets)) == "fast"
+        assert presets["fast"] == NerfConfig()
         assert NerfConfig().background == (0.0, 0.0, 0.0)
-
-    def test_unknown_preset_names_the_choices(self):
-        with pytest.raises(ValueError, match="'paper' or 'fast'"):
-            NerfConfig.preset("slow")
 
 
 class TestNerfBackboneSetup:

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from backbones.nerf import NerfConfig
+from backbones.nerf import NerfBackbone, NerfConfig
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import METHODS
@@ -60,7 +60,7 @@ class TestCheckpoint:
 class TestFastFieldLearnsTheDemoScene:
     def test_hdr_psnr_rises(self, tmp_path):
         scene = load_scene(DataConfig(scene="demo"))
-        config = train_config_for(NerfConfig)(backbone=NerfConfig.preset("fast"), out=tmp_path / "run", quiet=True,
+        config = train_config_for(NerfConfig)(backbone=NerfBackbone.presets()["fast"], out=tmp_path / "run", quiet=True,
                                               save_renders=False, checkpoint_every=10**9, max_steps=400,
                                               max_eval_views=2)
         trainer = Trainer(config, "nerf", scene)
