@@ -15,7 +15,7 @@ def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ..
     """One run per backbone, same scene, same budget; returns [{backbone, curve, fps...}]."""
     scenes, results = SceneCache(), []
     for backbone in backbones:
-        spec = RunSpec(backbone=backbone, method=method, preset="fast" if backbone == "nerf" else None, scene=scene_name)
+        spec = RunSpec(backbone=backbone, method=method, preset="cpu" if backbone == "nerf" else None, scene=scene_name)
         trainer = build_run(spec, scenes.get(scene_name, spec.exposure_index), 10**9, out / backbone, max_eval_views)
         trainer.backbone.set_run_length(estimate_steps(trainer, seconds))
         curve = train_for(trainer, seconds, eval_points)

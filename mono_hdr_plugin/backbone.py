@@ -69,6 +69,10 @@ class Backbone(torch.nn.Module):
         loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
         pixel_batch: None to train on whole images, or the number of rays per step.
         render_chunk: None to render whole images in one call, or the most rays per call.
+        converter_lr: learning rate of the method's networks unless --converter-lr is given: the
+            official codes' 5e-4; a backbone whose own networks learn much faster raises it, so
+            the converters keep pace with the colours they convert (the official NeRF trains both
+            at one rate).
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
@@ -81,6 +85,7 @@ class Backbone(torch.nn.Module):
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
     pixel_batch: ClassVar[int | None] = None
     render_chunk: ClassVar[int | None] = None
+    converter_lr: float = 5e-4
 
     def __init__(self, config: Any, scene: SceneInfo):
         super().__init__()

@@ -166,7 +166,7 @@ class BenchCurvesConfig:
     """Backbones to compare."""
     methods: tuple[str, ...] = ("mono", "hdr-gs", "hdr-nerf")
     """Methods to compare."""
-    nerf_presets: tuple[str, ...] = ("fast",)
+    nerf_presets: tuple[str, ...] = ("cpu",)
     """NeRF presets (paper costs ~2 s a step on CPU)."""
     scenes: tuple[str, ...] = ("demo",)
     """Studio scenes."""
@@ -280,7 +280,7 @@ class BenchPaperConfig:
     """Training steps per 3DGS row (default 300 quick, 3000 full)."""
     nerf_steps: int | None = None
     """Training steps per NeRF row (default 300 quick, 3000 full)."""
-    nerf_preset: str = "fast"
+    nerf_preset: str = "cpu"
     """NeRF preset for Table 1."""
     max_eval_views: int | None = None
     """Test views per evaluation (default 6 quick, all full)."""

@@ -53,9 +53,13 @@ def _coerce(annotation: Any, value: Any) -> Any:
         return config_from_dict(annotation, value)
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
-        for option in typing.get_args(annotation):
-            if option is not type(None):
-                return _coerce(option, value)
+        options = [option for option in typing.get_args(annotation) if option is not type(None)]
+        # A union of config dataclasses (NeRF's field): the one whose fields the saved keys name.
+        for option in options:
+            if dataclasses.is_dataclass(option) and isinstance(value, dict) and set(value) == {
+                    field.name for field in dataclasses.fields(option)}:
+                return config_from_dict(option, value)
+        return _coerce(options[0], value)
     if origin is typing.Annotated:
         return _coerce(typing.get_args(annotation)[0], value)
     if annotation is Path:

@@ -50,8 +50,9 @@ class MethodConfig:
     """Photometric loss; auto takes the backbone's (3DGS: L1 + D-SSIM, NeRF: MSE)."""
     dssim_weight: float = 0.2
     """lambda of (1 - lambda) L1 + lambda (1 - SSIM)."""
-    converter_lr: float = 5e-4
-    """Learning rate of L2H-CC / H2L-CC / the CRF networks (hard-coded in the official code)."""
+    converter_lr: float | None = None
+    """Learning rate of L2H-CC / H2L-CC / the CRF networks; default: the backbone's converter_lr
+    (5e-4, hard-coded in the official codes; the NeRF cpu field: the rate of its own MLPs)."""
     unit_exposure_weight: float = 0.5
     """HDR-NeRF: weight of the loss pinning CRF(ln 1) to unit_exposure_value."""
     unit_exposure_value: float = 0.5

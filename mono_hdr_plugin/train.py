@@ -138,6 +138,8 @@ class Trainer:
         self.backbone.set_run_length(self.run_length)
         ldr_share, _ = parse_view_ratio(config.hdr_view_ratio)
         method_config = config.hdr
+        if method_config.converter_lr is None:
+            method_config = dataclasses.replace(method_config, converter_lr=self.backbone.converter_lr)
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
             method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
         self.method = build_method(method_config, backbone_class.loss_kind)

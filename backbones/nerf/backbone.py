@@ -1,26 +1,28 @@
 """NerfBackbone: rays from the project's cameras, sampling, a field, and the compositing closure.
 
-The backbone hands out per-sample LDR colours [N_rays, S, 3] and a closure that composites any
-per-sample values with the same volume-rendering weights, so a method lifts every sample to
-HDR (L2H-CC) and renders LDR and HDR in one pass, as the official Mono-HDR-NeRF code does.
+The backbone hands out per-sample LDR colours and a closure that composites any per-sample
+values with the same volume-rendering weights, so a method lifts every sample to HDR (L2H-CC)
+and renders LDR and HDR in one pass, as the official Mono-HDR-NeRF code does.
 """
+
+import math
 
 import torch
 from torch import Tensor
 
-from backbones.nerf.config import NerfConfig
-from backbones.nerf.fields import DensityGrid, GridRadianceField, MlpRadianceField
+from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
+from backbones.nerf.fields import GridRadianceField, MlpRadianceField, OccupancyGrid
+from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
-from backbones.nerf.sampling import ray_segments, sample_pdf, sample_stratified
+from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
 
-
 class NerfBackbone(Backbone):
-    """Neural radiance field with the official MLP (field=paper) or a fast grid field (field=fast).
+    """Neural radiance field: a grid field made for a CPU (preset cpu) or the official MLP (preset paper).
 
     Instance attributes the trainer and evaluator read:
-        pixel_batch: rays per training step (the active field's rays_per_step).
+        pixel_batch: rays of the next training step (paper: fixed; cpu: sized to samples_per_step).
         render_chunk: rays per piece when rendering a whole image (split camera.pixels).
     """
 
@@ -39,6 +41,8 @@ class NerfBackbone(Backbone):
                              f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds")
         if len(config.background) != 3:
             raise ValueError(f"NerfConfig.background must be 3 numbers (RGB), got {config.background}")
+        if config.render_chunk < 1:
+            raise ValueError(f"NerfConfig.render_chunk must be >= 1, got {config.render_chunk}")
         self.register_buffer("bounds_min", bounds_min)
         self.register_buffer("bounds_max", bounds_max)
         self.register_buffer("background", torch.tensor(config.background, dtype=torch.float32))
@@ -46,52 +50,86 @@ class NerfBackbone(Backbone):
         self.scene_center = 0.5 * (bounds_min + bounds_max)
         self.scene_scale = float(0.5 * (bounds_max - bounds_min).max())
         self.render_chunk = config.render_chunk
-        if config.field == "paper":
-            paper = config.paper
-            if paper.coarse_samples < 3 or paper.fine_samples < 1:
-                raise ValueError("NerfConfig.paper needs coarse_samples >= 3 and fine_samples >= 1, "
-                                 f"got {paper.coarse_samples} and {paper.fine_samples}")
-            self.coarse_field = MlpRadianceField(paper)
-            self.fine_field = MlpRadianceField(paper)
-            self.pixel_batch = paper.rays_per_step
-        elif config.field == "fast":
-            fast = config.fast
-            if fast.uniform_samples < 1 or fast.importance_samples < 0 or fast.proposal_samples < 1:
-                raise ValueError("NerfConfig.fast needs uniform_samples >= 1, importance_samples >= 0 "
-                                 f"and proposal_samples >= 1, got {fast.uniform_samples}, "
-                                 f"{fast.importance_samples}, {fast.proposal_samples}")
-            self.grid_field = GridRadianceField(fast)
-            self.density_grid = DensityGrid(fast.density_grid_resolution)
-            self.pixel_batch = fast.rays_per_step
+        field = config.field
+        self.pixel_batch = field.rays_per_step
+        # The converters learn at the field's MLP rate, as the official NeRF recipe trains both at 5e-4.
+        self.converter_lr = field.lr if isinstance(field, MlpFieldConfig) else field.mlp_lr
+        if isinstance(field, MlpFieldConfig):
+            if field.coarse_samples < 3 or field.fine_samples < 1:
+                raise ValueError("the paper field needs coarse_samples >= 3 and fine_samples >= 1, "
+                                 f"got {field.coarse_samples} and {field.fine_samples}")
+            self.coarse_field = MlpRadianceField(field)
+            self.fine_field = MlpRadianceField(field)
+        elif isinstance(field, GridFieldConfig):
+            if field.max_samples_per_ray < 1 or not field.min_step > 0:
+                raise ValueError("the grid field needs max_samples_per_ray >= 1 and min_step > 0, got "
+                                 f"{field.max_samples_per_ray} and {field.min_step}")
+            if not 1 <= field.rays_per_step <= field.max_rays_per_step or field.samples_per_step < 1:
+                raise ValueError("the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
+                                 f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}")
+            self.grid_field = GridRadianceField(field)
+            self.occupancy = OccupancyGrid(field.occupancy_resolution)
+            self.occupancy.mark_seen(scene.train_cameras, self.to_world)
+            # The adaptive ray batch is state: a resumed run continues with the same batch.
+            self.register_buffer("rays_per_step", torch.tensor(field.rays_per_step))
+            self.register_load_state_dict_post_hook(lambda module, keys: module._sync_pixel_batch())
+            self._last_batch: tuple[int, int] | None = None
         else:
-            raise ValueError(f"NerfConfig.field must be 'paper' or 'fast', got {config.field!r}")
+            raise ValueError(f"NerfConfig.field must be a GridFieldConfig or MlpFieldConfig, got {type(field).__name__}")
 
     @classmethod
     def presets(cls) -> dict[str, NerfConfig]:
-        """fast: grid field with density-grid sampling (CPU default); paper: the official MLP recipe."""
-        return {"fast": NerfConfig(field="fast"), "paper": NerfConfig(field="paper")}
+        """cpu: grid field with occupancy-grid marching (the default); paper: the official MLP recipe."""
+        return {"cpu": NerfConfig(field=GridFieldConfig()), "paper": NerfConfig(field=MlpFieldConfig())}
+
+    @property
+    def uses_grid(self) -> bool:
+        return isinstance(self.config.field, GridFieldConfig)
 
     def parameter_groups(self) -> list[dict]:
-        if self.config.field == "paper":
+        field = self.config.field
+        if not self.uses_grid:
             return [{"name": "nerf_mlp", "params": list(self.coarse_field.parameters())
-                     + list(self.fine_field.parameters()), "lr": self.config.paper.lr}]
-        field = self.grid_field
-        return [{"name": "nerf_grid", "params": list(field.grids.parameters()), "lr": self.config.fast.grid_lr},
-                {"name": "nerf_mlp", "params": list(field.density_mlp.parameters())
-                 + list(field.color_mlp.parameters()), "lr": self.config.fast.mlp_lr}]
+                     + list(self.fine_field.parameters()), "lr": field.lr}]
+        grid = self.grid_field
+        # Instant-NGP's Adam: beta2 = 0.99, so rarely-hit grid cells follow their recent gradients.
+        return [{"name": "nerf_grid", "params": [grid.table], "lr": field.grid_lr, "betas": (0.9, 0.99)},
+                {"name": "nerf_mlp", "params": list(grid.density_mlp.parameters())
+                 + list(grid.color_mlp.parameters()), "lr": field.mlp_lr, "betas": (0.9, 0.99)}]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
-        """paper: NeRF's lr * factor ** (step / decay_steps); fast: decays to lr_final_factor over the run."""
-        if self.config.field == "paper":
-            paper = self.config.paper
-            return base_lr * paper.lr_decay_factor ** (step / paper.lr_decay_steps)
-        return base_lr * self.config.fast.lr_final_factor ** (step / max(self.max_steps, 1))
+        """paper: NeRF's lr * factor ** (step / decay_steps); cpu: decays to lr_final_factor at the
+        run's last step, so a new run length (set_run_length) reshapes the rest of the schedule."""
+        field = self.config.field
+        if not self.uses_grid:
+            return base_lr * field.lr_decay_factor ** (step / field.lr_decay_steps)
+        return base_lr * field.lr_final_factor ** (min(step, self.max_steps) / max(self.max_steps, 1))
 
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
-        """fast: refresh the density grid every density_grid_update_every steps (from step 0)."""
-        fast = self.config.fast
-        if self.config.field == "fast" and step % fast.density_grid_update_every == 0:
-            self.density_grid.update(self.grid_field.density, fast.density_grid_decay)
+        """cpu: size the next ray batch to samples_per_step; refresh the occupancy grid every
+        occupancy_update_every steps (from step 0)."""
+        field = self.config.field
+        if not self.uses_grid:
+            return
+        if self._last_batch is not None:
+            rays, samples = self._last_batch
+            wanted = field.samples_per_step * rays // max(samples, 1)
+            self.rays_per_step.fill_(min(max(wanted, 1), field.max_rays_per_step))
+            self._sync_pixel_batch()
+            self._last_batch = None
+        if step % field.occupancy_update_every == 0:
+            self.refresh_occupancy(all_cells=step < field.occupancy_warmup_steps)
+
+    def _sync_pixel_batch(self) -> None:
+        self.pixel_batch = int(self.rays_per_step)
+
+    def refresh_occupancy(self, all_cells: bool = True) -> None:
+        """Refresh the occupancy grid from the current field (see OccupancyGrid.update)."""
+        field = self.config.field
+        step_length = field.min_step
+        # Opacity over one step >= threshold  <=>  density >= -ln(1 - threshold) / step.
+        threshold = -math.log1p(-field.occupancy_threshold) / step_length
+        self.occupancy.update(self.grid_field.density, field.occupancy_decay, threshold, all_cells=all_cells)
 
     @property
     def stochastic_sampling(self) -> bool:
@@ -103,22 +141,25 @@ class NerfBackbone(Backbone):
         """World points [..., 3] -> the field's frame, where the box's longest side spans [-1, 1]."""
         return (points - self.scene_center.to(points)) / self.scene_scale
 
+    def to_world(self, points: Tensor) -> Tensor:
+        """Normalised points [..., 3] -> world points (the inverse of normalise)."""
+        return points * self.scene_scale + self.scene_center.to(points)
+
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         """Per-sample LDR colours of the camera's rays and their compositing closure.
 
-        Returns LdrFeatures with colors, raw_colors [N_rays, S, 3] (N_rays = prod(output_shape)) and
-        composite: [N_rays, S, C] -> [*camera.output_shape, C] for field=paper; for field=fast the
-        samples are packed, colors [M, 3] and composite [M, C] -> [*output_shape, C], holding only
-        the M samples that contribute (extras "ray_indices" [M] says whose they are). Extras "weights"
-        and "sample_distances" (t along the unit ray) [N_rays, S],
-        "depth" (expected distance, 0 where empty) and "alpha" (accumulation) [*output_shape],
-        and for field=paper auxiliary = [the coarse network's LdrFeatures].
+        paper field: colors, raw_colors [N_rays, S, 3] (N_rays = prod(output_shape)) and composite
+        [N_rays, S, C] -> [*camera.output_shape, C], auxiliary = [the coarse network's LdrFeatures].
+        cpu field: the samples are packed, colors [M, 3] and composite [M, C] -> [*output_shape, C],
+        holding only the M samples that contribute (extras "ray_indices" [M] says whose they are).
+        Both: extras "weights" and "sample_distances" (t along the unit ray) [N_rays, S], "depth"
+        (expected distance, 0 where empty) and "alpha" (accumulation) [*output_shape].
         """
         origins, directions = camera.rays()
         device = self.bounds_min.device
         origins, directions = origins.reshape(-1, 3).to(device), directions.reshape(-1, 3).to(device)
         output_shape = camera.output_shape
-        render = self._render_paper if self.config.field == "paper" else self._render_fast
+        render = self._render_grid if self.uses_grid else self._render_paper
         return render(origins, directions, camera, output_shape, self.stochastic_sampling)
 
     def _features(self, density: Tensor, raw_color: Tensor, t: Tensor, t_far: Tensor,
@@ -140,7 +181,7 @@ class NerfBackbone(Backbone):
 
     def _render_paper(self, origins: Tensor, directions: Tensor, camera: Camera,
                       output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
-        paper = self.config.paper
+        paper = self.config.field
         bounds = (self.bounds_min, self.bounds_max) if paper.clip_to_bounds else None
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, bounds)
         t_coarse = sample_stratified(t_near, t_far, paper.coarse_samples, perturb=stochastic)
@@ -157,55 +198,81 @@ class NerfBackbone(Backbone):
         fine.auxiliary = [coarse]
         return fine
 
-    def _render_fast(self, origins: Tensor, directions: Tensor, camera: Camera,
+    def march(self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
+              ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Marched samples of the cpu field, S = max_samples_per_ray per ray at most.
+
+        Returns t, delta [N, S] (world units; delta 0 past a ray's samples, where t stays at the
+        ray's far end, so rows are sorted), the flat indices [M] of the real samples in [N * S],
+        and fraction [N, S]: where in its bin of occupied length each sample sits (0.5 unless jittered).
+        """
+        field = self.config.field
+        t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, (self.bounds_min, self.bounds_max))
+        samples = field.max_samples_per_ray
+        fraction = (torch.rand(origins.shape[0], samples, device=origins.device) if stochastic
+                    else torch.full((origins.shape[0], samples), 0.5, device=origins.device))
+        t, delta, counts = march_rays(origins, directions, t_near, t_far, self.occupancy.occupied,
+                                      self.scene_center, self.scene_scale, field.min_step * self.scene_scale,
+                                      samples, fraction if stochastic else None)
+        real = torch.arange(samples, device=counts.device) < counts[:, None]
+        t = torch.where(real, t, t_far[:, None].expand_as(t))
+        return t, delta, real.reshape(-1).nonzero()[:, 0], fraction
+
+    def place_samples(self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
+                      ) -> tuple[Tensor, Tensor, Tensor]:
+        """Where the cpu field is shaded: marched samples in occupied cells, then a density pass
+        without gradients places importance_samples per ray from their weights (or, with 0, keeps
+        the marched samples in front of early_stop_transmittance while training).
+
+        Returns t, delta [N, S] (world units, rows sorted) and the flat indices [M] of the samples
+        to shade in [N * S].
+        """
+        field = self.config.field
+        t, delta, flat, fraction = self.march(origins, directions, camera, stochastic)
+        wants_proposal = field.importance_samples > 0 or (torch.is_grad_enabled() and field.early_stop_transmittance > 0)
+        if not wants_proposal or not flat.numel():
+            return t, delta, flat
+        ray_of = flat // t.shape[1]
+        with torch.no_grad():
+            positions = self.normalise(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
+            density = (self.occupancy.lookup(positions) if field.proposal == "cache" and field.importance_samples > 0
+                       else self.grid_field.density(positions))
+            weights = self._weights(density, flat, delta / self.scene_scale)
+            if field.importance_samples > 0:
+                t, delta = resample_occupied(t, delta, fraction, weights, field.importance_samples,
+                                             deterministic=not stochastic)
+                return t, delta, (delta > 0).reshape(-1).nonzero()[:, 0]
+            transmittance = 1.0 - (torch.cumsum(weights, dim=-1) - weights)
+            return t, delta, flat[transmittance.reshape(-1)[flat] > field.early_stop_transmittance]
+
+    def _render_grid(self, origins: Tensor, directions: Tensor, camera: Camera,
                      output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
-        """Packed features: only samples in occupied cells get a density, and only those whose
-        weight reaches min_sample_weight get a colour (colors [M, 3], composite [M, C] -> image)."""
-        fast = self.config.fast
-        t_near, t_far = ray_segments(origins, directions, camera.near, camera.far,
-                                     (self.bounds_min, self.bounds_max))
-        t = sample_stratified(t_near, t_far, fast.uniform_samples, perturb=stochastic)
-        if fast.importance_samples > 0:
-            with torch.no_grad():
-                t_importance = self._proposal_samples(origins, directions, t_near, t_far, stochastic)
-            t = torch.sort(torch.cat([t, t_importance], dim=-1), dim=-1).values
-        positions = self.normalise(origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
-        occupied = self._occupied(positions).nonzero()[:, 0]
-        density_occupied, geometry = self.grid_field.density_and_geometry(positions[occupied])
-        density = positions.new_zeros(positions.shape[0]).index_put((occupied,), density_occupied)
-        weights = compositing_weights(density.reshape(t.shape), sample_deltas(t, t_far) / self.scene_scale)
-        flat_weights = weights.reshape(-1)
-        kept = (flat_weights.detach() >= max(fast.min_sample_weight, torch.finfo(weights.dtype).tiny)).nonzero()[:, 0]
-        # Every kept sample has a positive weight, hence a positive density: it is among the occupied ones.
-        rank_in_occupied = torch.full_like(density, -1, dtype=torch.long).index_put(
-            (occupied,), torch.arange(occupied.shape[0], device=occupied.device))
-        ray_indices = kept // t.shape[1]
-        raw_color = self.grid_field.color(geometry[rank_in_occupied[kept]], directions[ray_indices])
+        """Packed features: the field runs on the placed samples (place_samples) and only those
+        whose weight reaches min_sample_weight get a colour."""
+        field = self.config.field
+        t, delta, flat = self.place_samples(origins, directions, camera, stochastic)
+        rays, samples = t.shape
+        if stochastic:
+            self._last_batch = (rays, flat.numel())
+        ray_of = flat // samples
+        positions = self.normalise(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
+        density, geometry = self.grid_field.density_and_geometry(positions)
+        weights = self._weights(density, flat, delta / self.scene_scale)
+        sample_weights = weights.reshape(-1)[flat]
+        coloured = sample_weights.detach() >= max(field.min_sample_weight, torch.finfo(weights.dtype).tiny)
+        ray_indices = ray_of[coloured]
+        raw_color = self.grid_field.color(geometry[coloured], directions[ray_indices])
         accumulation = weights.sum(dim=-1)
         extras = {"weights": weights, "sample_distances": t, "ray_indices": ray_indices,
                   "depth": (weights * t).sum(dim=-1).reshape(output_shape),
                   "alpha": accumulation.reshape(output_shape)}
-        composite = make_packed_composite(flat_weights[kept], ray_indices, accumulation, output_shape,
+        composite = make_packed_composite(sample_weights[coloured], ray_indices, accumulation, output_shape,
                                           self.background)
         return LdrFeatures(colors=torch.sigmoid(raw_color), raw_colors=raw_color, composite=composite,
                            extras=extras)
 
-    def _proposal_samples(self, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor,
-                          stochastic: bool) -> Tensor:
-        """Importance samples [N, importance_samples] from the density grid's rendering weights."""
-        fast = self.config.fast
-        edges = sample_stratified(t_near, t_far, fast.proposal_samples + 1, perturb=False)
-        mids = 0.5 * (edges[:, 1:] + edges[:, :-1])
-        positions = self.normalise(origins[:, None] + mids[..., None] * directions[:, None])
-        cached = self.density_grid.lookup(positions.reshape(-1, 3)).reshape(mids.shape)
-        weights = compositing_weights(cached, (edges[:, 1:] - edges[:, :-1]) / self.scene_scale)
-        return sample_pdf(edges, weights, fast.importance_samples, deterministic=not stochastic)
-
-    def _occupied(self, positions: Tensor) -> Tensor:
-        """Which normalised positions [M, 3] the field must evaluate: [M] bool."""
-        # Samples of rays that miss the box sit outside the grids' cube [-1, 1]^3: never evaluated.
-        # The tolerance keeps samples on the box faces that rounding pushed just outside.
-        wanted = (positions.abs() <= 1.0 + 1e-4).all(dim=-1)
-        if self.density_grid.filled:
-            wanted &= self.density_grid.lookup(positions) > self.config.fast.occupancy_threshold
-        return wanted
+    @staticmethod
+    def _weights(density: Tensor, flat: Tensor, deltas: Tensor) -> Tensor:
+        """Compositing weights [N, S] of packed densities [K] at flat indices [K] of [N, S]."""
+        dense = deltas.new_zeros(deltas.numel()).index_put((flat,), density).reshape(deltas.shape)
+        return compositing_weights(dense, deltas)

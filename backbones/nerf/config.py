@@ -1,16 +1,17 @@
-"""Hyper-parameters of the NeRF backbone: one dataclass per field, one on top choosing.
+"""Hyper-parameters of the NeRF backbone: one dataclass per field, one on top holding either.
 
-Every field is a tyro flag (`--field`, `--paper.coarse-samples`, `--fast.max-resolution`, ...).
-Each field config carries its own sampling and optimiser settings, so `--field paper` alone
-already gives the official recipe and `--field fast` the CPU one: the presets are the two
-values of `field`.
+Each field config carries its own sampling and optimiser settings. Which one a run uses is the
+preset's choice (`--preset cpu`, the default, or `--preset paper`); its settings are then flags
+under `--backbone.field.*` (`--backbone.field.max-resolution`, `--backbone.field.coarse-samples`).
 """
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
-DensityActivation = Literal["relu", "softplus"]
+import tyro
+
+DensityActivation = Literal["relu", "softplus", "exp"]
 
 
 @dataclass
@@ -48,16 +49,15 @@ class MlpFieldConfig:
 
 @dataclass
 class GridFieldConfig:
-    """A CPU-friendly field: multi-resolution dense grids + tiny MLPs, sampled through a
-    density grid that doubles as occupancy grid (skip empty space) and proposal (importance
-    samples where the cached density says the surface is)."""
+    """A field made for a CPU (Instant-NGP's recipe, CPU kernels): multi-resolution dense feature
+    grids, tiny MLPs, and samples marched only through the cells an occupancy grid marks."""
 
-    levels: int = 4
+    levels: int = 8
     """Grid levels, resolutions spaced geometrically from min_resolution to max_resolution."""
     min_resolution: int = 16
     """Vertices per side of the coarsest grid."""
-    max_resolution: int = 96
-    """Vertices per side of the finest grid (memory grows with its cube)."""
+    max_resolution: int = 128
+    """Vertices per side of the finest grid (memory grows with its cube: 128 -> 17 MB at 2 features)."""
     features_per_level: int = 2
     """Feature channels stored per grid vertex."""
     hidden_width: int = 64
@@ -73,26 +73,43 @@ class GridFieldConfig:
     of the finest grid opaque, so surfaces sharpen in tens of steps, not thousands."""
     density_bias: float = -4.0
     """Starts the field nearly empty (scale * softplus(bias) ~ 0.6 per normalised unit)."""
-    uniform_samples: int = 32
-    """Stratified samples per ray over the ray's segment inside the scene box."""
-    importance_samples: int = 32
-    """Samples per ray drawn from the density grid's volume-rendering weights."""
-    proposal_samples: int = 128
-    """Density-grid look-ups per ray that build the importance pdf (cheap, no network)."""
-    density_grid_resolution: int = 64
-    """Cells per side of the density grid."""
-    density_grid_update_every: int = 16
-    """Steps between density-grid refreshes (each evaluates the field once per cell)."""
-    density_grid_decay: float = 0.95
-    """A cell keeps max(decay * old, new): fading memory that never forgets a surface at once."""
-    occupancy_threshold: float = 0.01
-    """Samples where the cached density (per unit of the normalised box) is below this are
-    skipped once the grid has been filled."""
+    min_step: float = 1.0 / 128.0
+    """Closest spacing of samples along a ray, in units of the box's half side (the box's longest
+    side spans 2)."""
+    max_samples_per_ray: int = 64
+    """Most samples per ray: a ray spreads them over its occupied length, so early in training
+    (everything occupied) a ray costs this many and later only ~occupied length / min_step."""
+    importance_samples: int = 8
+    """Samples per ray the field runs on with gradients (and the converters on), drawn from the
+    marched samples' weights of a density pass without gradients; 0: every marched sample in
+    front of early_stop_transmittance instead."""
+    proposal: Literal["field", "cache"] = "field"
+    """Weights the importance samples are drawn from: the field's density at the marched samples
+    (a pass without gradients), or the occupancy grid's cached density (no network at all)."""
+    early_stop_transmittance: float = 1e-4
+    """While training, samples behind this transmittance (from a first, gradient-free density pass)
+    are not evaluated again; when rendering they get no colour."""
     min_sample_weight: float = 1e-4
-    """Samples whose rendering weight is below this are dropped before colour: they cost the
-    colour MLP and the per-sample HDR lifting (L2H-CC) but change a pixel by < this x value."""
+    """Samples whose rendering weight is below this get no colour: they cost the colour MLP and
+    the per-sample HDR lifting (L2H-CC) but change a pixel by < this x value."""
+    occupancy_resolution: int = 64
+    """Cells per side of the occupancy grid."""
+    occupancy_update_every: int = 16
+    """Steps between occupancy-grid refreshes (from step 0)."""
+    occupancy_decay: float = 0.95
+    """A cell keeps max(decay * old, new) density: fading memory that never forgets a surface at once."""
+    occupancy_threshold: float = 0.01
+    """A cell is occupied when its opacity over one min_step reaches this (or the mean opacity of
+    all seen cells, if that is lower: the untrained field is not all empty)."""
+    occupancy_warmup_steps: int = 256
+    """Refreshes evaluate every cell until this step, then a random quarter plus the occupied ones."""
     rays_per_step: int = 1024
-    """Rays per training step."""
+    """Rays of the first training step; later steps take as many rays as samples_per_step allows."""
+    samples_per_step: int = 32768
+    """Samples a training step aims to carry gradients for (Instant-NGP's constant sample budget):
+    few rays while samples still fill the box, up to max_rays_per_step once they crowd at surfaces."""
+    max_rays_per_step: int = 16384
+    """Most rays per training step."""
     grid_lr: float = 1e-2
     """Adam learning rate of the grid features."""
     mlp_lr: float = 1e-2
@@ -101,19 +118,19 @@ class GridFieldConfig:
     """Learning rates decay exponentially to this factor at the last step of the run."""
 
 
+FieldConfig = GridFieldConfig | MlpFieldConfig
+
+
 @dataclass
 class NerfConfig:
-    """NeRF backbone: the volume renderer plus the field chosen by `field`."""
+    """NeRF backbone: the volume renderer plus a field (chosen by `--preset`: cpu or paper)."""
 
-    field: Literal["paper", "fast"] = "fast"
-    """paper: the official 8 x 256 MLP, 64 + 128 samples (faithful, ~40 s per step on 2 CPU cores);
-    fast: multi-resolution grids + tiny MLPs with density-grid sampling (CPU default)."""
-    paper: MlpFieldConfig = dataclasses.field(default_factory=MlpFieldConfig)
-    """Settings used when field=paper."""
-    fast: GridFieldConfig = dataclasses.field(default_factory=GridFieldConfig)
-    """Settings used when field=fast."""
+    field: Annotated[FieldConfig, tyro.conf.AvoidSubcommands] = dataclasses.field(default_factory=GridFieldConfig)
+    """The radiance field and its sampling and optimiser settings: GridFieldConfig (preset cpu) or
+    MlpFieldConfig (preset paper, the official 8 x 256 MLP)."""
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Colour behind the scene, added as (1 - accumulation) * background to every group of 3
     composited channels (LDR and HDR alike); black, as in the paper's synthetic scenes."""
     render_chunk: int = 8192
-    """Rays rendered at once when a whole image is rendered in pieces (memory bound)."""
+    """Rays rendered at once when a whole image is rendered in pieces: memory is bounded by
+    render_chunk x the field's samples per ray."""

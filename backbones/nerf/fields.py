@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from backbones.nerf.config import DensityActivation, GridFieldConfig, MlpFieldConfig
+from backbones.nerf.kernels import grid_encode
 
 
 def positional_encoding(x: Tensor, num_frequencies: int) -> Tensor:
@@ -28,9 +29,17 @@ def encoded_size(num_frequencies: int, dims: int = 3) -> int:
     return dims * (1 + 2 * num_frequencies)
 
 
+# exp's input is capped here: exp(20) ~ 5e8 is opaque over any sample, and stays finite.
+MAX_LOG_DENSITY = 20.0
+
+
 def activate_density(raw: Tensor, activation: DensityActivation) -> Tensor:
     """Non-negative, finite density from a raw network output: [...] -> [...]."""
-    return F.relu(raw) if activation == "relu" else F.softplus(raw)
+    if activation == "relu":
+        return F.relu(raw)
+    if activation == "exp":
+        return torch.exp(raw.clamp(max=MAX_LOG_DENSITY))
+    return F.softplus(raw)
 
 
 class MlpRadianceField(nn.Module):
@@ -72,23 +81,21 @@ def grid_resolutions(config: GridFieldConfig) -> list[int]:
     return [round(config.min_resolution * growth ** level) for level in range(config.levels)]
 
 
-def sample_grid(grid: Tensor, positions: Tensor) -> Tensor:
-    """Trilinear look-up. grid: [1, C, R, R, R]; positions: [M, 3] in [-1, 1]. Returns [M, C]."""
-    coordinates = positions.reshape(1, 1, 1, -1, 3).to(grid.dtype)
-    values = F.grid_sample(grid, coordinates, mode="bilinear", padding_mode="border", align_corners=True)
-    return values.reshape(grid.shape[1], -1).T
-
-
 class GridRadianceField(nn.Module):
-    """Multi-resolution dense feature grids, a tiny density MLP and a tiny colour MLP."""
+    """Multi-resolution dense feature grids (one table, C++ trilinear kernel), a tiny density MLP
+    and a tiny colour MLP."""
 
     def __init__(self, config: GridFieldConfig):
         super().__init__()
         self.config = config
+        resolutions = grid_resolutions(config)
+        if min(resolutions) < 2:
+            raise ValueError(f"GridFieldConfig needs min_resolution >= 2, got resolutions {resolutions}")
+        sizes = torch.tensor([r**3 for r in resolutions])
+        self.register_buffer("resolutions", torch.tensor(resolutions), persistent=False)
+        self.register_buffer("offsets", torch.cumsum(sizes, 0) - sizes, persistent=False)
         # Near-zero features, as Instant-NGP initialises its tables: the MLPs start from biases.
-        self.grids = nn.ParameterList([
-            nn.Parameter(torch.empty(1, config.features_per_level, size, size, size).uniform_(-1e-4, 1e-4))
-            for size in grid_resolutions(config)])
+        self.table = nn.Parameter(torch.empty(int(sizes.sum()), config.features_per_level).uniform_(-1e-4, 1e-4))
         width = config.hidden_width
         self.density_mlp = nn.Sequential(nn.Linear(config.levels * config.features_per_level, width),
                                          nn.ReLU(), nn.Linear(width, 1 + config.geo_features))
@@ -98,7 +105,7 @@ class GridRadianceField(nn.Module):
 
     def encode(self, positions: Tensor) -> Tensor:
         """positions: [M, 3] in [-1, 1]. Returns grid features [M, levels * features_per_level]."""
-        return torch.cat([sample_grid(grid, positions) for grid in self.grids], dim=-1)
+        return grid_encode(positions, self.table, self.resolutions, self.offsets)
 
     def density_and_geometry(self, positions: Tensor) -> tuple[Tensor, Tensor]:
         """positions: [M, 3] in [-1, 1]. Returns density [M] and geometry features [M, geo_features]."""
@@ -108,7 +115,7 @@ class GridRadianceField(nn.Module):
         return density, out[:, 1:]
 
     def density(self, positions: Tensor) -> Tensor:
-        """positions: [M, 3] in [-1, 1]. Returns density [M] (for the density grid)."""
+        """positions: [M, 3] in [-1, 1]. Returns density [M] (for the occupancy grid)."""
         return self.density_and_geometry(positions)[0]
 
     def color(self, geometry: Tensor, directions: Tensor) -> Tensor:
@@ -121,42 +128,91 @@ class GridRadianceField(nn.Module):
         return density, self.color(geometry, directions)
 
 
-class DensityGrid(nn.Module):
-    """A coarse cache of the field's density over the normalised box [-1, 1]^3.
+class OccupancyGrid(nn.Module):
+    """Which cells of the normalised cube [-1, 1]^3 may hold anything: samples go only there.
 
-    It decides which samples to skip (occupancy) and where to put importance samples
-    (proposal). Until the first `update`, every cell counts as occupied and the proposal is
-    uniform, so an untrained model renders with plain stratified sampling.
+    A cell is occupied when its cached density is above a threshold. The cache keeps, per cell,
+    max(decay * old, density at a random point of the cell), refreshed from the field during
+    training (Instant-NGP, nerfacc). Cells no training camera sees are never occupied. Until the
+    first refresh every seen cell is occupied, so an untrained field renders with plain
+    stratified samples.
     """
 
     def __init__(self, resolution: int):
         super().__init__()
+        if resolution < 1:
+            raise ValueError(f"occupancy_resolution must be >= 1, got {resolution}")
         self.resolution = resolution
-        self.register_buffer("densities", torch.zeros(1, 1, resolution, resolution, resolution))
+        shape = (resolution, resolution, resolution)  # [z, y, x]
+        self.register_buffer("densities", torch.zeros(shape))
+        self.register_buffer("seen", torch.ones(shape, dtype=torch.bool))
+        self.register_buffer("occupied", torch.ones(shape, dtype=torch.bool))
         self.register_buffer("updates", torch.zeros((), dtype=torch.long))
 
     @property
     def filled(self) -> bool:
         return bool(self.updates > 0)
 
+    def cell_centers(self) -> Tensor:
+        """[G^3, 3] (x, y, z) centres of the cells, in the order of the flattened [z, y, x] grid."""
+        axis = -1.0 + (2.0 * torch.arange(self.resolution, dtype=torch.float32) + 1.0) / self.resolution
+        z, y, x = torch.meshgrid(axis, axis, axis, indexing="ij")
+        return torch.stack([x, y, z], dim=-1).reshape(-1, 3)
+
     def lookup(self, positions: Tensor) -> Tensor:
-        """Trilinear cached density. positions: [M, 3] in [-1, 1]. Returns [M]."""
-        return sample_grid(self.densities, positions)[:, 0]
+        """Cached density, trilinear between cell centres. positions: [M, 3] in [-1, 1]. Returns [M]."""
+        grid = self.densities.reshape(1, 1, *self.densities.shape)
+        values = F.grid_sample(grid, positions.reshape(1, 1, 1, -1, 3).to(grid.dtype), mode="bilinear",
+                               padding_mode="border", align_corners=False)
+        return values.reshape(-1)
 
     @torch.no_grad()
-    def update(self, density_fn, decay: float, chunk: int = 65536) -> None:
-        """Refresh every cell with density_fn at a random point of the cell: new = max(decay * old, fresh).
+    def mark_seen(self, cameras, to_world) -> None:
+        """Keep only cells some camera sees: a cell counts as seen when a corner or its centre
+        projects into an image in front of the camera; the result grows by one cell on every
+        side, so cells that cross an image border are kept too.
 
-        density_fn: positions [M, 3] in [-1, 1] -> densities [M].
+        cameras: the training cameras; to_world: normalised positions [M, 3] -> world [M, 3].
+        """
+        half = 1.0 / self.resolution
+        offsets = torch.tensor([[0.0, 0.0, 0.0]] + [[sx * half, sy * half, sz * half] for sx in (-1, 1)
+                                                    for sy in (-1, 1) for sz in (-1, 1)])
+        centers = self.cell_centers()
+        seen = torch.zeros(centers.shape[0], dtype=torch.bool)
+        for offset in offsets:
+            points = to_world(centers + offset)
+            for camera in cameras:
+                pixels, depth = camera.project(points)
+                seen |= ((depth > camera.near) & (pixels[:, 0] >= 0) & (pixels[:, 0] <= camera.width)
+                         & (pixels[:, 1] >= 0) & (pixels[:, 1] <= camera.height))
+        grid = seen.reshape(1, 1, *self.seen.shape).float()
+        self.seen.copy_(F.max_pool3d(grid, 3, stride=1, padding=1)[0, 0] > 0)
+        self.occupied &= self.seen
+
+    @torch.no_grad()
+    def update(self, density_fn, decay: float, threshold: float, all_cells: bool = True,
+               chunk: int = 65536) -> None:
+        """Refresh cells with density_fn at a random point of each: new = max(decay * old, fresh).
+
+        density_fn: positions [M, 3] in [-1, 1] -> densities [M] (per unit of normalised length).
+        threshold: a density; a cell is occupied above min(threshold, mean density of seen cells).
+        all_cells: refresh every seen cell; otherwise a random quarter of the cells plus the
+        occupied ones (Instant-NGP after its warm-up).
         """
         size = self.resolution
-        axis = torch.arange(size, dtype=torch.float32, device=self.densities.device)
-        # grid_sample reads the last axis of `positions` as x = the grid's last dimension.
-        z, y, x = torch.meshgrid(axis, axis, axis, indexing="ij")
-        cells = torch.stack([x, y, z], dim=-1).reshape(-1, 3)
-        # Vertices sit at -1 + 2 i / (size - 1) (align_corners=True): jitter half a cell around them.
-        positions = (-1.0 + 2.0 * (cells + torch.rand_like(cells) - 0.5) / (size - 1)).clamp(-1.0, 1.0)
-        fresh = torch.cat([density_fn(part) for part in positions.split(chunk)])
-        current = self.densities.reshape(-1)
-        current.copy_(torch.maximum(current * decay if self.filled else torch.zeros_like(current), fresh))
+        seen = self.seen.reshape(-1)
+        if all_cells:
+            chosen = seen.nonzero()[:, 0]
+        else:
+            count = max(1, seen.numel() // 4)
+            candidates = torch.cat([torch.randint(seen.numel(), (count,)), self.occupied.reshape(-1).nonzero()[:, 0]])
+            chosen = candidates[seen[candidates]].unique()
+        cells = self.cell_centers()[chosen]
+        positions = (cells + (torch.rand_like(cells) - 0.5) * (2.0 / size)).clamp(-1.0, 1.0)
+        fresh = torch.cat([density_fn(part) for part in positions.split(chunk)]) if len(positions) else cells[:, 0]
+        cache = self.densities.reshape(-1)
+        old = cache[chosen] * decay if self.filled else torch.zeros_like(fresh)
+        cache[chosen] = torch.maximum(old, fresh)
+        mean = cache[seen].mean() if seen.any() else cache.new_zeros(())
+        self.occupied.copy_((self.densities > torch.clamp(mean, max=threshold)) & self.seen)
         self.updates += 1

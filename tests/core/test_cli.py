@@ -5,6 +5,7 @@ import json
 import pytest
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+from backbones.nerf import GridFieldConfig, MlpFieldConfig
 from mono_hdr_plugin.cli import main
 
 
@@ -103,17 +104,24 @@ class TestPresets:
 
     def test_preset_gives_the_defaults_and_flags_override_it(self, captured):
         with pytest.raises(SystemExit):
-            main(["train", "nerf", "--preset", "paper", "--backbone.paper.coarse-samples", "16"])
+            main(["train", "nerf", "--preset", "paper", "--backbone.field.coarse-samples", "16"])
         config = captured["config"]
         assert captured["backbone"] == "nerf" and config.preset == "paper"
-        assert config.backbone.field == "paper" and config.backbone.paper.coarse_samples == 16
+        assert isinstance(config.backbone.field, MlpFieldConfig) and config.backbone.field.coarse_samples == 16
 
     def test_default_preset_is_the_first(self, captured):
         from backbones.nerf import NerfBackbone
 
         with pytest.raises(SystemExit):
-            main(["train", "nerf"])
-        assert captured["config"].preset == next(iter(NerfBackbone.presets()))
+            main(["train", "nerf", "--backbone.field.max-resolution", "64"])
+        config = captured["config"]
+        assert config.preset == next(iter(NerfBackbone.presets())) == "cpu"
+        assert isinstance(config.backbone.field, GridFieldConfig) and config.backbone.field.max_resolution == 64
+
+    def test_the_preset_alone_chooses_the_nerf_field(self):
+        """One way to choose the field: the cpu preset has no paper-field flags (and no --backbone.field.X choice)."""
+        with pytest.raises(SystemExit):
+            main(["train", "nerf", "--backbone.field.coarse-samples", "16"])
 
     def test_unknown_preset_names_the_choices(self):
         with pytest.raises(ValueError, match="not a preset of backbone 'nerf'.*paper"):

@@ -22,10 +22,10 @@ from mono_hdr_plugin.train import Trainer, load_trained, train_config_for
 
 BACKBONE_CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),
-    "nerf-fast": lambda: NerfConfig(field="fast", fast=GridFieldConfig(
-        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, uniform_samples=8, importance_samples=8,
-        proposal_samples=16, density_grid_resolution=8, density_grid_update_every=2, rays_per_step=64)),
-    "nerf-paper": lambda: NerfConfig(field="paper", paper=MlpFieldConfig(
+    "nerf-cpu": lambda: NerfConfig(field=GridFieldConfig(
+        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, min_step=0.125, max_samples_per_ray=16,
+        occupancy_resolution=8, occupancy_update_every=2, rays_per_step=64, samples_per_step=512)),
+    "nerf-paper": lambda: NerfConfig(field=MlpFieldConfig(
         width=32, coarse_samples=8, fine_samples=8, rays_per_step=64, density_activation="softplus")),
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
 }

@@ -78,12 +78,12 @@ def backbone_config(backbone: str, **overrides):
         return GaussianConfig(**{"sh_degree": 1, "random_init_points": 150, "max_gaussians": 500,
                                  **overrides})
     if backbone == "nerf":
-        return NerfConfig(field=overrides.pop("field", "fast"),
-                          paper=MlpFieldConfig(width=16, depth=3, skip_layer=1, coarse_samples=8, fine_samples=8,
-                                               rays_per_step=64, density_activation="softplus"),
-                          fast=GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16,
-                                               uniform_samples=8, importance_samples=8, proposal_samples=16,
-                                               density_grid_resolution=8, rays_per_step=64),
+        field = overrides.pop("field", "cpu")
+        return NerfConfig(field=MlpFieldConfig(width=16, depth=3, skip_layer=1, coarse_samples=8, fine_samples=8,
+                                               rays_per_step=64, density_activation="softplus") if field == "paper"
+                          else GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16,
+                                               min_step=0.125, max_samples_per_ray=16, occupancy_resolution=8,
+                                               rays_per_step=64, samples_per_step=512),
                           render_chunk=4096, **overrides)
     raise ValueError(f"unknown backbone {backbone!r}")
 

@@ -169,8 +169,7 @@ def test_gs_no_gaussians_at_all(backend):
 # ------------------------------------------------------------------- volume renderer
 def nerf_backbone(field: str, activation: str = "softplus") -> NerfBackbone:
     config = backbone_config("nerf", field=field)
-    config.paper.density_activation = activation
-    config.fast.density_activation = activation
+    config.field.density_activation = activation
     scene = make_scene()
     return NerfBackbone(config, scene.scene_info())
 
@@ -190,7 +189,7 @@ def render_nerf_with_grads(backbone: NerfBackbone, camera: Camera):
     return image, features
 
 
-FIELDS = [("paper", "relu"), ("paper", "softplus"), ("fast", "relu"), ("fast", "softplus")]
+FIELDS = [("paper", "relu"), ("paper", "softplus"), ("cpu", "relu"), ("cpu", "softplus")]
 
 
 @pytest.mark.parametrize("field,activation", FIELDS)

@@ -1,41 +1,41 @@
+import dataclasses
 import math
 from importlib.metadata import entry_points
 
 import pytest
 import torch
 
-from backbones.nerf import NerfBackbone, NerfConfig
+from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfBackbone, NerfConfig
+from backbones.nerf.rendering import compositing_weights
 from mono_hdr_plugin.backbone import Backbone, SceneInfo
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.cameras import Camera, look_at
 from mono_hdr_plugin.registry import get_backbone
-
-from mono_hdr_plugin.cameras import look_at
 from nerf_scenes import orbit_camera, tiny_config
 
-FIELDS = ("paper", "fast")
+FIELDS = ("paper", "cpu")
 
 
-def filled_fast_backbone(scene) -> NerfBackbone:
-    """A fast backbone whose density grid has been filled (occupancy skipping active)."""
-    backbone = NerfBackbone(tiny_config("fast"), scene)
+def filled_grid_backbone(scene) -> NerfBackbone:
+    """A cpu-field backbone whose occupancy grid has been refreshed once (skipping active)."""
+    backbone = NerfBackbone(tiny_config("cpu"), scene)
     backbone.after_step(0, None, None)
     return backbone
 
 
 class TestNerfPresets:
     def test_paper_preset_is_the_official_recipe(self):
-        config = NerfBackbone.presets()["paper"]
-        paper = config.paper
-        assert config.field == "paper"
+        paper = NerfBackbone.presets()["paper"].field
+        assert isinstance(paper, MlpFieldConfig)
         assert (paper.depth, paper.width, paper.skip_layer) == (8, 256, 4)
         assert (paper.xyz_frequencies, paper.dir_frequencies) == (10, 4)
         assert (paper.coarse_samples, paper.fine_samples, paper.rays_per_step) == (64, 128, 1024)
         assert paper.lr == 5e-4
 
-    def test_fast_is_the_default(self):
+    def test_cpu_is_the_default(self):
         presets = NerfBackbone.presets()
-        assert next(iter(presets)) == "fast"
-        assert presets["fast"] == NerfConfig()
+        assert list(presets) == ["cpu", "paper"]
+        assert presets["cpu"] == NerfConfig()
+        assert isinstance(NerfConfig().field, GridFieldConfig)
         assert NerfConfig().background == (0.0, 0.0, 0.0)
 
 
@@ -55,12 +55,14 @@ class TestNerfBackboneSetup:
     def test_bad_bounds_name_the_argument(self, scene, bounds):
         bad = SceneInfo(bounds_min=bounds[0], bounds_max=bounds[1], train_cameras=scene.train_cameras)
         with pytest.raises(ValueError, match="bounds_min/bounds_max"):
-            NerfBackbone(tiny_config("fast"), bad)
+            NerfBackbone(tiny_config("cpu"), bad)
 
-    def test_bad_sample_counts_raise(self, scene):
-        config = tiny_config("paper")
-        config.paper.coarse_samples = 2
-        with pytest.raises(ValueError, match="coarse_samples"):
+    @pytest.mark.parametrize("field,name,value", [("paper", "coarse_samples", 2), ("cpu", "max_samples_per_ray", 0),
+                                                  ("cpu", "min_step", 0.0)])
+    def test_bad_sample_settings_raise(self, scene, field, name, value):
+        config = tiny_config(field)
+        setattr(config.field, name, value)
+        with pytest.raises(ValueError, match=name):
             NerfBackbone(config, scene)
 
     def test_parameter_groups_cover_every_parameter(self, scene):
@@ -74,17 +76,43 @@ class TestNerfBackboneSetup:
         paper = NerfBackbone(tiny_config("paper"), scene)
         assert paper.learning_rate("nerf_mlp", 0, 5e-4) == 5e-4
         assert paper.learning_rate("nerf_mlp", 250_000, 5e-4) == pytest.approx(5e-5)
-        fast = NerfBackbone(tiny_config("fast"), scene)
-        fast.set_run_length(1000)
-        assert fast.learning_rate("nerf_grid", 1000, 1e-2) == pytest.approx(1e-3)
-        assert fast.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1 ** 0.5)
+        grid = NerfBackbone(tiny_config("cpu"), scene)
+        grid.set_run_length(1000)
+        assert grid.learning_rate("nerf_grid", 0, 1e-2) == pytest.approx(1e-2)
+        assert grid.learning_rate("nerf_grid", 1000, 1e-2) == pytest.approx(1e-3)
+        assert grid.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1 ** 0.5)
 
-    def test_after_step_fills_density_grid_on_schedule(self, scene):
-        backbone = NerfBackbone(tiny_config("fast"), scene)
+    def test_a_new_run_length_rescales_the_schedule_and_keeps_the_model(self, scene):
+        """--max-seconds tells the backbone a new run length while it trains."""
+        backbone = filled_grid_backbone(scene)
+        backbone.set_run_length(1000)
+        before = {name: value.clone() for name, value in backbone.state_dict().items()}
+        backbone.set_run_length(2000)
+        assert backbone.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1 ** 0.25)
+        assert backbone.learning_rate("nerf_mlp", 2000, 1e-2) == pytest.approx(1e-3)
+        backbone.set_run_length(400)  # shorter than the steps already taken: stays at the final rate
+        assert backbone.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-3)
+        after = backbone.state_dict()
+        assert before.keys() == after.keys()
+        assert all(torch.equal(before[name], after[name]) for name in before)
+
+    def test_after_step_refreshes_occupancy_on_schedule(self, scene):
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
         backbone.after_step(1, None, None)
-        assert not backbone.density_grid.filled
+        assert not backbone.occupancy.filled
         backbone.after_step(0, None, None)
-        assert backbone.density_grid.filled
+        assert backbone.occupancy.filled
+
+    def test_cells_no_camera_sees_are_never_occupied(self):
+        # One camera far out on +x with a narrow view (half a unit wide at the origin): the box's corners are unseen.
+        camera = Camera(look_at(torch.tensor([10.0, 0.0, 0.0]), torch.zeros(3)), 160, 160, 4, 4, 8, 8, near=0.5, far=20.0)
+        scene = SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=[camera])
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        occupancy = backbone.occupancy
+        assert 0 < occupancy.seen.sum() < occupancy.seen.numel()
+        assert occupancy.seen[4, 4, 4] and not occupancy.seen[0, 0, 0] and not occupancy.seen[7, 7, 7]
+        backbone.occupancy.update(lambda p: torch.full(p.shape[:1], 100.0), decay=0.9, threshold=1.0)
+        assert torch.equal(occupancy.occupied, occupancy.seen)
 
 
 class TestRenderLdrFeatures:
@@ -98,15 +126,18 @@ class TestRenderLdrFeatures:
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
         assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
 
-    def test_pixel_batch_shapes_fast(self, scene):
-        backbone = NerfBackbone(tiny_config("fast"), scene)
+    @pytest.mark.parametrize("importance,columns", [(0, 16), (4, 4)])
+    def test_pixel_batch_shapes_cpu(self, scene, importance, columns):
+        """importance 0: the marched samples (max_samples_per_ray columns); else importance_samples per ray."""
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        backbone.config.field.importance_samples = importance
         features = backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8))
         packed = features.extras["ray_indices"].shape[0]
-        assert 0 < packed <= 10 * 16  # 8 uniform + 8 importance per ray, before dropping
+        assert 0 < packed <= 10 * columns
         assert features.colors.shape == features.raw_colors.shape == (packed, 3)
         torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
         assert features.composite(torch.rand(packed, 6)).shape == (10, 6)
-        assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, 16)
+        assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, columns)
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
         assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
 
@@ -124,11 +155,12 @@ class TestRenderLdrFeatures:
         assert coarse.colors.shape == (64, 8, 3)
         assert coarse.composite(coarse.colors).shape == (8, 8, 3)
 
-    def test_fast_has_no_auxiliary(self, scene):
-        assert NerfBackbone(tiny_config("fast"), scene).render_ldr_features(orbit_camera()).auxiliary == []
+    def test_cpu_has_no_auxiliary(self, scene):
+        assert NerfBackbone(tiny_config("cpu"), scene).render_ldr_features(orbit_camera()).auxiliary == []
 
-    def test_samples_sorted_and_inside_box(self, scene):
-        backbone = NerfBackbone(tiny_config("paper"), scene)
+    @pytest.mark.parametrize("field", FIELDS)
+    def test_samples_sorted_and_inside_box(self, scene, field):
+        backbone = NerfBackbone(tiny_config(field), scene)
         features = backbone.render_ldr_features(orbit_camera())
         t = features.extras["sample_distances"]
         assert (t[:, 1:] >= t[:, :-1]).all()
@@ -139,7 +171,7 @@ class TestRenderLdrFeatures:
         assert (positions[hits].abs() <= 1.0 + 1e-4).all()
 
     def test_background_fills_rays_that_miss(self, scene):
-        backbone = NerfBackbone(tiny_config("fast", background=(0.1, 0.2, 0.3)), scene)
+        backbone = NerfBackbone(tiny_config("cpu", background=(0.1, 0.2, 0.3)), scene)
         looking_away = Camera(look_at(torch.tensor([3.0, 0.0, 0.0]), torch.tensor([6.0, 0.0, 0.0])), 8, 8, 4, 4, 8, 8)
         features = backbone.render_ldr_features(looking_away)
         image = features.composite(torch.rand_like(features.colors))
@@ -149,7 +181,7 @@ class TestRenderLdrFeatures:
 class TestChunkedRender:
     @pytest.mark.parametrize("field", FIELDS)
     def test_chunks_equal_whole_image(self, scene, field):
-        backbone = NerfBackbone(tiny_config(field), scene) if field == "paper" else filled_fast_backbone(scene)
+        backbone = NerfBackbone(tiny_config(field), scene) if field == "paper" else filled_grid_backbone(scene)
         camera = orbit_camera(size=10)
         with torch.no_grad():
             whole = backbone.render_ldr_features(camera)
@@ -161,8 +193,9 @@ class TestChunkedRender:
                 parts.append(part.composite(part.colors))
         torch.testing.assert_close(torch.cat(parts).reshape(10, 10, 3), whole_image)
 
-    def test_training_with_gradients_jitters_samples(self, scene):
-        backbone = NerfBackbone(tiny_config("paper"), scene)
+    @pytest.mark.parametrize("field", FIELDS)
+    def test_training_with_gradients_jitters_samples(self, scene, field):
+        backbone = NerfBackbone(tiny_config(field), scene)
         camera = orbit_camera()
         first = backbone.render_ldr_features(camera).extras["sample_distances"]
         second = backbone.render_ldr_features(camera).extras["sample_distances"]
@@ -208,25 +241,75 @@ class TestHardRays:
         assert torch.equal(features.extras["alpha"], torch.zeros(4, 4))
 
 
-class TestPackedSamples:
-    def test_packed_composite_equals_dense_composite(self, scene):
-        backbone = filled_fast_backbone(scene)
-        backbone.config.fast.min_sample_weight = 0.0
-        features = backbone.render_ldr_features(orbit_camera())
-        weights = features.extras["weights"]
-        dense = torch.zeros(weights.numel(), 3)
-        kept = (weights.reshape(-1) > 0).nonzero()[:, 0]
-        assert kept.shape[0] == features.colors.shape[0]
-        dense[kept] = features.colors
-        expected = torch.einsum("ns,nsc->nc", weights, dense.reshape(*weights.shape, 3))
-        torch.testing.assert_close(features.composite(features.colors), expected.reshape(8, 8, 3))
+def unpacked_render(backbone: NerfBackbone, camera: Camera) -> torch.Tensor:
+    """The cpu field rendered the plain way at the same samples: density and colour at every
+    placed sample, dense [rays, samples] compositing, no weight threshold."""
+    origins, directions = (x.reshape(-1, 3) for x in camera.rays())
+    t, delta, flat = backbone.place_samples(origins, directions, camera, stochastic=False)
+    positions = backbone.normalise(origins[:, None] + t[..., None] * directions[:, None])
+    placed = torch.zeros(t.numel(), dtype=torch.bool)
+    placed[flat] = True
+    density, raw_color = backbone.grid_field(positions.reshape(-1, 3),
+                                             directions[:, None].expand_as(positions).reshape(-1, 3))
+    density = torch.where(placed, density, torch.zeros_like(density)).reshape(t.shape)
+    weights = compositing_weights(density, delta / backbone.scene_scale)
+    image = torch.einsum("ns,nsc->nc", weights, torch.sigmoid(raw_color).reshape(*t.shape, 3))
+    return image.reshape(camera.height, camera.width, 3)
 
-    def test_dropped_samples_change_pixels_little(self, scene):
-        backbone = filled_fast_backbone(scene)
-        backbone.config.fast.min_sample_weight = 0.05
+
+def opaque_ball_backbone(scene) -> NerfBackbone:
+    """A cpu-field backbone whose density MLP makes an opaque ball of radius 0.5 (normalised)
+    in front of random colours, with the occupancy grid refreshed from it."""
+    backbone = NerfBackbone(tiny_config("cpu"), scene)
+    field = backbone.grid_field
+    original = field.density_and_geometry
+
+    def ball(positions):
+        density, geometry = original(positions)
+        return density + 200.0 * (positions.norm(dim=-1) < 0.5).float(), geometry
+
+    field.density_and_geometry = ball
+    backbone.refresh_occupancy()
+    return backbone
+
+
+class TestPackedSamples:
+    @pytest.mark.parametrize("min_weight,tolerance", [(0.0, 1e-5), (1e-4, 16 * 1e-4)])
+    def test_packed_and_unpacked_render_the_same_image(self, scene, min_weight, tolerance):
+        backbone = opaque_ball_backbone(scene)
+        backbone.config.field.min_sample_weight = min_weight
+        camera = orbit_camera(size=12)
+        with torch.no_grad():
+            features = backbone.render_ldr_features(camera)
+            packed = features.composite(features.colors)
+            reference = unpacked_render(backbone, camera)
+        assert reference.amax() > 0.2  # the ball is in view
+        # A dropped sample has weight < min_weight: a pixel loses at most 16 (samples per ray) of them.
+        torch.testing.assert_close(packed, reference, atol=tolerance, rtol=0)
+
+    def test_early_stop_while_training_changes_pixels_by_at_most_its_threshold(self, scene):
+        backbone = opaque_ball_backbone(scene)
+        evaluated = []
+        backbone.grid_field.density_mlp.register_forward_hook(
+            lambda module, inputs, output: evaluated.append((torch.is_grad_enabled(), inputs[0].shape[0])))
+        camera = orbit_camera(size=12)
+        torch.manual_seed(3)
+        stopped = backbone.render_ldr_features(camera)
+        backbone.config.field.early_stop_transmittance = 0.0
+        torch.manual_seed(3)
+        full = backbone.render_ldr_features(camera)
+        (first_pass, with_grad, unstopped) = evaluated
+        assert not first_pass[0] and with_grad[0] and unstopped[0]
+        assert with_grad[1] < first_pass[1] == unstopped[1]  # samples behind the ball got no gradient pass
+        ones = lambda f: f.composite(torch.ones_like(f.colors))  # noqa: E731
+        torch.testing.assert_close(ones(stopped), ones(full), atol=1e-4 + 16 * 1e-4, rtol=0)
+
+    def test_weight_threshold_drops_only_light_samples(self, scene):
+        backbone = filled_grid_backbone(scene)
+        backbone.config.field.min_sample_weight = 0.05
         with torch.no_grad():
             dropped = backbone.render_ldr_features(orbit_camera())
-            backbone.config.fast.min_sample_weight = 0.0
+            backbone.config.field.min_sample_weight = 0.0
             full = backbone.render_ldr_features(orbit_camera())
         assert dropped.colors.shape[0] < full.colors.shape[0]
         difference = full.composite(full.colors.new_ones(full.colors.shape)) - dropped.composite(
@@ -237,21 +320,85 @@ class TestPackedSamples:
 
 class TestOccupancySkipping:
     def test_empty_cells_are_not_evaluated(self, scene):
-        backbone = NerfBackbone(tiny_config("fast"), scene)
-        backbone.density_grid.update(lambda p: 5.0 * (p[:, 0] > 0.0).float(), decay=0.9)
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        backbone.occupancy.update(lambda p: 5.0 * (p[:, 0] > 0.0).float(), decay=0.9, threshold=1.0)
         evaluated = []
         backbone.grid_field.density_mlp.register_forward_hook(
             lambda module, inputs, output: evaluated.append(inputs[0].shape[0]))
-        features = backbone.render_ldr_features(orbit_camera())
-        assert 0 < evaluated[0] < features.extras["sample_distances"].numel()
-        assert (features.extras["weights"] == 0).any()
-
-    def test_importance_samples_follow_the_density_grid(self, scene):
-        backbone = NerfBackbone(tiny_config("fast"), scene)
-        # An opaque slab x > 0.5 faces a camera on the +x axis: along the central ray it spans t in [2, 2.5].
-        backbone.density_grid.update(lambda p: 50.0 * (p[:, 0] > 0.5).float(), decay=0.9)
-        camera = orbit_camera(eye=(3.0, 0.0, 0.0)).with_pixels(torch.full((1, 2), 4.0))
         with torch.no_grad():
-            t = backbone.render_ldr_features(camera).extras["sample_distances"]
-        # 8 uniform samples over [2, 4] put about 2 in front of t = 2.7; the importance samples add ~8 more.
-        assert (t < 2.7).sum() >= 8
+            features = backbone.render_ldr_features(orbit_camera())
+        positions = features.extras["sample_distances"]
+        assert 0 < evaluated[0]
+        # Half the cube is empty: every marched sample lies in the x > 0 half.
+        origins, directions = (x.reshape(-1, 3) for x in orbit_camera().rays())
+        t, _, flat, _ = backbone.march(origins, directions, orbit_camera(), stochastic=False)
+        points = backbone.normalise(origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)[flat]
+        assert evaluated[0] == flat.numel() and (points[:, 0] > -1e-5).all()
+        assert positions.shape == t.shape
+
+    def test_samples_crowd_into_occupied_cells(self, scene):
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        # An occupied slab x > 0.5 faces a camera on the +x axis: along the central ray it spans t in [2, 2.5].
+        backbone.occupancy.update(lambda p: 50.0 * (p[:, 0] > 0.5).float(), decay=0.9, threshold=1.0)
+        camera = orbit_camera(eye=(3.0, 0.0, 0.0)).with_pixels(torch.full((1, 2), 4.0))
+        origins, directions = (x.reshape(-1, 3) for x in camera.rays())
+        t, delta, flat, _ = backbone.march(origins, directions, camera, stochastic=False)
+        # Occupied length 0.5 at min_step 0.25: 2 samples, both in the slab.
+        assert flat.numel() == 2
+        torch.testing.assert_close(t[0, :2], torch.tensor([2.125, 2.375]))
+        torch.testing.assert_close(delta[0, :2], torch.tensor([0.25, 0.25]))
+
+    def test_refresh_keeps_every_weighted_sample_of_a_trained_field(self, tmp_path, voxel_scene):
+        """The occupancy grid of a trained field never drops a sample that carries weight (1 % of its
+        ray) in a dense-sampling reference render (every cell occupied, steps 16x finer)."""
+        from mono_hdr_plugin.train import Trainer, train_config_for
+
+        config = NerfConfig(field=GridFieldConfig(levels=2, min_resolution=4, max_resolution=16, hidden_width=16,
+                                                  min_step=1 / 32, occupancy_resolution=16, occupancy_update_every=4,
+                                                  rays_per_step=256))
+        train = train_config_for(NerfConfig)(backbone=config, out=tmp_path, quiet=True, max_steps=150,
+                                             save_renders=False, checkpoint_every=10**9)
+        trainer = Trainer(train, "nerf", voxel_scene)
+        while trainer.step < train.max_steps:
+            trainer.train_step()
+        backbone = trainer.backbone.eval()
+        occupancy = backbone.occupancy
+        assert 0 < occupancy.occupied.sum() < occupancy.seen.sum()  # it does skip space
+        # Dense reference: every cell occupied, steps 16x finer, every marched sample shaded.
+        dense_field = dataclasses.replace(config.field, max_samples_per_ray=256, min_step=config.field.min_step / 16,
+                                          importance_samples=0)
+        dense = NerfBackbone(dataclasses.replace(config, field=dense_field), voxel_scene.scene_info())
+        dense.load_state_dict(backbone.state_dict())
+        dense.occupancy.occupied.fill_(True)
+        dense.eval()
+        for view in voxel_scene.test:
+            with torch.no_grad():
+                features = dense.render_ldr_features(view.camera)
+            origins, directions = (x.reshape(-1, 3) for x in view.camera.rays())
+            weights, t = features.extras["weights"], features.extras["sample_distances"]
+            carrying = weights > 1e-2
+            points = backbone.normalise(origins[:, None] + t[..., None] * directions[:, None])[carrying]
+            cells = ((points + 1) * occupancy.resolution / 2).floor().long().clamp(0, occupancy.resolution - 1)
+            assert carrying.sum() > 10
+            assert occupancy.occupied[cells[:, 2], cells[:, 1], cells[:, 0]].all()
+
+
+class TestRenderMemoryBound:
+    def test_every_field_call_of_a_full_render_is_bounded_by_the_chunk(self, scene):
+        """Memory per piece is bounded by construction: render_full hands the backbone at most
+        render_chunk rays, and the field sees at most render_chunk x max_samples_per_ray samples."""
+        from mono_hdr_plugin.methods import MethodConfig, build_method
+        from mono_hdr_plugin.train import render_full
+
+        backbone = NerfBackbone(tiny_config("cpu", render_chunk=50), scene).eval()
+        rays, samples = [], []
+        render = backbone.render_ldr_features
+        backbone.render_ldr_features = lambda camera: rays.append(camera.pixels.shape[0]) or render(camera)
+        backbone.grid_field.density_mlp.register_forward_hook(
+            lambda module, inputs, output: samples.append(inputs[0].shape[0]))
+        camera = orbit_camera(size=30)
+        with torch.no_grad():
+            output = render_full(backbone, build_method(MethodConfig(), "mse"), camera, 1.0)
+        assert output.ldr.shape == (30, 30, 3)
+        assert sum(rays) == 900 and max(rays) <= 50
+        assert len(samples) == len(rays) and max(samples) <= 50 * backbone.config.field.max_samples_per_ray

@@ -3,8 +3,9 @@ import math
 import torch
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig
-from backbones.nerf.fields import (DensityGrid, GridRadianceField, MlpRadianceField, activate_density,
-                                   encoded_size, grid_resolutions, positional_encoding, sample_grid)
+from backbones.nerf.fields import (GridRadianceField, MlpRadianceField, OccupancyGrid, activate_density,
+                                   encoded_size, grid_resolutions, positional_encoding)
+from backbones.nerf.reference import grid_encode_reference
 
 
 class TestPositionalEncoding:
@@ -58,37 +59,74 @@ class TestGridRadianceField:
         assert grid_resolutions(GridFieldConfig(levels=4, min_resolution=16, max_resolution=128)) == [16, 32, 64, 128]
         assert grid_resolutions(GridFieldConfig(levels=1, max_resolution=32)) == [32]
 
-    def test_sample_grid_is_trilinear(self):
-        grid = torch.arange(8, dtype=torch.float32).reshape(1, 1, 2, 2, 2)
-        # Corners: value = 4 z + 2 y + x with (x, y, z) in {0, 1}; the centre averages them.
-        values = sample_grid(grid, torch.tensor([[0.0, 0.0, 0.0], [1.0, -1.0, -1.0], [-1.0, -1.0, 1.0]]))
-        torch.testing.assert_close(values[:, 0], torch.tensor([3.5, 1.0, 4.0]))
+    def test_table_holds_every_level_one_after_another(self):
+        field = GridRadianceField(GridFieldConfig(levels=3, min_resolution=4, max_resolution=16, features_per_level=2))
+        assert field.resolutions.tolist() == [4, 8, 16]
+        assert field.offsets.tolist() == [0, 64, 64 + 512]
+        assert field.table.shape == (64 + 512 + 4096, 2)
+        assert field.table.abs().max() <= 1e-4  # near zero, as Instant-NGP starts
+        assert "table" in field.state_dict() and "offsets" not in field.state_dict()
 
-    def test_shapes_and_gradients_reach_grids(self):
+    def test_encode_is_the_trilinear_reference(self):
+        field = GridRadianceField(GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
+        with torch.no_grad():
+            field.table.normal_()
+        positions = torch.rand(64, 3) * 2 - 1
+        torch.testing.assert_close(field.encode(positions),
+                                   grid_encode_reference(positions, field.table, field.resolutions, field.offsets))
+
+    def test_shapes_and_gradients_reach_every_level(self):
         field = GridRadianceField(GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16))
         directions = torch.nn.functional.normalize(torch.randn(40, 3), dim=-1)
         density, raw_color = field(torch.rand(40, 3) * 2 - 1, directions)
         assert density.shape == (40,) and raw_color.shape == (40, 3)
         (density.sum() + raw_color.sum()).backward()
-        assert all(grid.grad is not None and grid.grad.abs().sum() > 0 for grid in field.grids)
+        for offset, resolution in zip(field.offsets.tolist(), field.resolutions.tolist()):
+            assert field.table.grad[offset:offset + resolution**3].abs().sum() > 0
         assert field.density(torch.zeros(3, 3)).shape == (3,)
 
 
-class TestDensityGrid:
-    def test_starts_empty_and_unfilled(self):
-        grid = DensityGrid(8)
+class TestOccupancyGrid:
+    def test_starts_all_occupied_and_unfilled(self):
+        grid = OccupancyGrid(8)
         assert not grid.filled
-        assert torch.equal(grid.lookup(torch.rand(5, 3)), torch.zeros(5))
+        assert grid.occupied.all() and grid.occupied.shape == (8, 8, 8)
 
-    def test_update_caches_density(self):
-        grid = DensityGrid(16)
-        grid.update(lambda p: 10.0 * (p.norm(dim=-1) < 0.5).float(), decay=0.9)
+    def test_cell_centres_follow_the_zyx_layout(self):
+        centers = OccupancyGrid(4).cell_centers().reshape(4, 4, 4, 3)
+        torch.testing.assert_close(centers[1, 2, 3], torch.tensor([0.75, 0.25, -0.25]))
+
+    def test_update_marks_dense_cells(self):
+        grid = OccupancyGrid(16)
+        grid.update(lambda p: 10.0 * (p.norm(dim=-1) < 0.5).float(), decay=0.9, threshold=1.0)
         assert grid.filled
-        assert grid.lookup(torch.zeros(1, 3)).item() > 5.0
-        assert grid.lookup(torch.tensor([[0.95, 0.95, 0.95]])).item() == 0.0
+        assert grid.occupied[8, 8, 8] and not grid.occupied[0, 0, 0]
+        # Cells wholly inside the ball are occupied, cells wholly outside are not.
+        centers = grid.cell_centers()
+        half_diagonal = 3**0.5 / 16
+        inside = centers.norm(dim=-1) < 0.5 - half_diagonal
+        outside = centers.norm(dim=-1) > 0.5 + half_diagonal
+        assert grid.occupied.reshape(-1)[inside].all() and not grid.occupied.reshape(-1)[outside].any()
+
+    def test_threshold_falls_to_the_mean_of_a_faint_field(self):
+        # An untrained field is faint everywhere: cells above its mean stay occupied, not none.
+        grid = OccupancyGrid(8)
+        grid.update(lambda p: 0.01 * (1.0 + p[:, 0]), decay=0.9, threshold=5.0)
+        fraction = grid.occupied.float().mean()
+        assert 0.3 < fraction < 0.7
 
     def test_decay_forgets_slowly(self):
-        grid = DensityGrid(4)
-        grid.update(lambda p: torch.full(p.shape[:1], 2.0), decay=0.5)
-        grid.update(lambda p: torch.zeros(p.shape[0]), decay=0.5)
+        grid = OccupancyGrid(4)
+        grid.update(lambda p: torch.full(p.shape[:1], 2.0), decay=0.5, threshold=1.5)
+        grid.update(lambda p: torch.zeros(p.shape[0]), decay=0.5, threshold=1.5)
         torch.testing.assert_close(grid.densities, torch.full_like(grid.densities, 1.0))
+        assert not grid.occupied.any()
+
+    def test_partial_update_refreshes_a_quarter_plus_occupied_cells(self):
+        grid = OccupancyGrid(8)
+        grid.update(lambda p: 10.0 * (p[:, 0] > 0.5).float(), decay=1.0, threshold=1.0)
+        seen = []
+        grid.update(lambda p: seen.append(p) or torch.zeros(p.shape[0]), decay=1.0, threshold=1.0, all_cells=False)
+        evaluated = torch.cat(seen)
+        assert evaluated.shape[0] < 512 // 2 + 128 + 1
+        assert (evaluated[:, 0] > 0.5).sum() >= 128  # every occupied cell (x > 0.5: 2 of 8 layers) is refreshed

@@ -4,7 +4,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backbones.nerf.sampling import intersect_box, ray_segments, sample_pdf, sample_stratified
+from backbones.nerf.sampling import intersect_box, ray_segments, resample_occupied, sample_pdf, sample_stratified
 
 BOX = (-torch.ones(3), torch.ones(3))
 
@@ -119,3 +119,40 @@ class TestSamplePdf:
         assert torch.isfinite(samples).all()
         assert (samples[:, 1:] >= samples[:, :-1]).all()
         assert (samples >= edges[:, :1] - 1e-6).all() and (samples <= edges[:, -1:] + 1e-6).all()
+
+
+class TestResampleOccupied:
+    def test_samples_follow_the_weight_into_its_bin(self):
+        # Four marched bins of length 0.5 at t = 1.25, 1.75, 3.25, 3.75 (a gap between the pairs);
+        # all weight in the third bin [3.0, 3.5].
+        t = torch.tensor([[1.25, 1.75, 3.25, 3.75]])
+        delta = torch.full((1, 4), 0.5)
+        weights = torch.tensor([[0.0, 0.0, 0.9, 0.0]])
+        new_t, new_delta = resample_occupied(t, delta, torch.full((1, 4), 0.5), weights, 100, deterministic=True)
+        inside = ((new_t >= 3.0) & (new_t <= 3.5)).float().mean()
+        assert inside > 0.97  # 99 % of the pdf, up to the evenly spread 1 %
+        assert (new_t[:, 1:] >= new_t[:, :-1]).all()
+
+    def test_deltas_add_up_to_the_occupied_length_after_the_first_sample(self):
+        t = torch.tensor([[1.25, 1.75, 3.25, 3.75]])
+        delta = torch.full((1, 4), 0.5)
+        new_t, new_delta = resample_occupied(t, delta, torch.full((1, 4), 0.5), torch.zeros(1, 4), 8,
+                                             deterministic=True)
+        # Zero weights: evenly spread over the occupied length 2 from its start, 0.25 each.
+        torch.testing.assert_close(new_delta, torch.full((1, 8), 0.25))
+        # Occupied length 2 in two pieces: evenly spaced quantiles map across the gap [2, 3].
+        expected_s = torch.arange(8) * 0.25
+        expected_t = torch.where(expected_s < 1.0, 1.0 + expected_s, 2.0 + expected_s)
+        torch.testing.assert_close(new_t[0], expected_t)
+
+    def test_jittered_marching_positions_are_respected(self):
+        # A sample jittered to 10 % of its bin: the bin still starts at t - 0.1 * delta.
+        t = torch.tensor([[2.05]])
+        new_t, _ = resample_occupied(t, torch.tensor([[0.5]]), torch.tensor([[0.1]]), torch.ones(1, 1), 3,
+                                     deterministic=True)
+        torch.testing.assert_close(new_t[0], torch.tensor([2.0, 2.0 + 1 / 6, 2.0 + 2 / 6]))
+
+    def test_rays_without_occupied_length_get_zero_deltas(self):
+        new_t, new_delta = resample_occupied(torch.full((2, 3), 5.0), torch.zeros(2, 3), torch.full((2, 3), 0.5),
+                                             torch.zeros(2, 3), 4, deterministic=False)
+        assert torch.isfinite(new_t).all() and torch.equal(new_delta, torch.zeros(2, 4))
