@@ -88,6 +88,11 @@ class Backbone(torch.nn.Module):
         self.max_steps = 30_000
 
     @classmethod
+    def benchmarks(cls) -> dict[str, tuple[type, Callable[[Any], Any]]]:
+        """Benchmarks this backbone adds to `mono-hdr bench`: name -> (config dataclass, function)."""
+        return {}
+
+    @classmethod
     def presets(cls) -> dict[str, Any]:
         """Named configurations of this backbone (`--preset NAME`); the first one is the default."""
         return {"default": cls.config_class()}

@@ -22,13 +22,13 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import MethodConfig
-from mono_hdr_plugin.registry import get_backbone
-from mono_hdr_plugin.train import Trainer, camera_chunks, render_full, train_config_for
+from mono_hdr_plugin.registry import BACKBONES, get_backbone
+from mono_hdr_plugin.train import Trainer, TrainingHook, train_config_for
 
 console = Console()
 
@@ -69,15 +69,15 @@ def render_fps(trainer: Trainer, repeats: int = 3) -> tuple[float, float]:
     """Frames per second of one test view: LDR only (3 channels) and LDR + HDR (the method)."""
 
     view = trainer.scene.test[0]
-    camera = view.camera
+    camera, pipeline = view.camera, trainer.pipeline
 
     def ldr_only():
-        for part in camera_chunks(trainer.backbone, camera):
-            features = trainer.backbone.render_ldr_features(part)
+        for part in pipeline.camera_chunks(camera):
+            features = pipeline.backbone.render_ldr_features(part)
             features.composite(features.colors)
 
     def ldr_hdr():
-        render_full(trainer.backbone, trainer.method, camera, view.exposure)
+        pipeline.render(camera, view.exposure)
 
     times = {"ldr": [], "ldr_hdr": []}
     for _ in range(repeats):  # interleaved, so machine load hits both alike
@@ -106,15 +106,18 @@ class RunSpec:
                                          self.hdr_view_ratio, self.losses))
 
 
-def build_run(spec: RunSpec, scene: SceneData, max_steps: int, out: Path, max_eval_views: int | None) -> Trainer:
+def build_run(spec: RunSpec, scene: SceneData, out: Path, max_eval_views: int | None, max_steps: int = 10**9,
+              max_seconds: float | None = None) -> Trainer:
+    """The trainer of one benchmark row: the backbone's preset, the row's method and losses."""
     backbone_class = get_backbone(spec.backbone)
     config_class = backbone_class.config_class
     presets = backbone_class.presets()
     backbone_config = presets[spec.preset or next(iter(presets))]
     use_ldr, use_hdr, use_h2l = spec.losses
     config = train_config_for(config_class)(
-        backbone=backbone_config, preset=spec.preset, max_steps=max_steps, out=out, quiet=True, save_renders=False,
-        checkpoint_every=10**9, max_eval_views=max_eval_views, hdr_view_ratio=spec.hdr_view_ratio,
+        backbone=backbone_config, preset=spec.preset, max_steps=max_steps, max_seconds=max_seconds, out=out,
+        quiet=True, save_renders=False, checkpoint_every=10**9, max_eval_views=max_eval_views,
+        hdr_view_ratio=spec.hdr_view_ratio,
         data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index),
         hdr=MethodConfig(method=spec.method, use_ldr_loss=use_ldr, use_hdr_loss=use_hdr, use_h2l_loss=use_h2l))
     return Trainer(config, spec.backbone, scene)
@@ -133,24 +136,29 @@ class SceneCache:
         return self._scenes[key]
 
 
-def train_for(trainer: Trainer, budget_seconds: float, eval_points: int) -> list[dict[str, Any]]:
-    """Train to a time budget, evaluating at evenly spaced training times (eval not counted)."""
-    curve = []
-    for k in range(eval_points):
-        while trainer.train_seconds < budget_seconds * (k + 1) / eval_points:
-            trainer.train_step()
-        metrics = trainer.evaluate()
-        curve.append({key: metrics[key] for key in ("steps", "train_seconds", "hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max",
-                                                      "ldr_psnr", "ldr_ssim", "ldr_psnr_per_exposure")})
-    return curve
+CURVE_KEYS = ("steps", "train_seconds", "hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "ldr_psnr", "ldr_ssim",
+              "ldr_psnr_per_exposure")
 
 
-def estimate_steps(trainer: Trainer, budget_seconds: float, probe_steps: int = 5) -> int:
-    """Steps that fit in the budget, from a few timed steps (schedules scale to this)."""
-    for _ in range(probe_steps):
-        trainer.train_step()
-    per_step = trainer.train_seconds / max(trainer.step, 1)
-    return max(probe_steps + 1, int(budget_seconds / per_step))
+class EvaluateAtSeconds(TrainingHook):
+    """Evaluate at evenly spaced training times of a --max-seconds run (evaluation not counted)."""
+
+    def __init__(self, points: int):
+        self.points = points
+        self.curve: list[dict[str, Any]] = []
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        due = trainer.config.max_seconds * (len(self.curve) + 1) / self.points
+        if trainer.train_seconds >= due or trainer.finished:
+            metrics = trainer.evaluate()
+            self.curve.append({key: metrics[key] for key in CURVE_KEYS})
+
+
+def train_for(trainer: Trainer, eval_points: int) -> list[dict[str, Any]]:
+    """Train a --max-seconds run to its end, evaluating at `eval_points` evenly spaced training times."""
+    curve = EvaluateAtSeconds(eval_points)
+    trainer.fit([curve])
+    return curve.curve
 
 
 # ------------------------------------------------------------------------------ curves
@@ -189,10 +197,9 @@ def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
         task = progress.add_task("bench curves", total=len(specs))
         for spec in specs:
             progress.update(task, description=f"{spec.backbone}/{spec.method} on {spec.scene}")
-            trainer = build_run(spec, scenes.get(spec.scene, spec.exposure_index), 10**9, config.out / "runs",
-                                max_eval_views)
-            trainer.backbone.set_run_length(estimate_steps(trainer, budget))
-            curve = train_for(trainer, budget, config.eval_points)
+            trainer = build_run(spec, scenes.get(spec.scene, spec.exposure_index), config.out / "runs",
+                                max_eval_views, max_seconds=budget)
+            curve = train_for(trainer, config.eval_points)
             fps_ldr, fps_ldr_hdr = render_fps(trainer)
             results["runs"].append({"backbone": spec.backbone, "method": spec.method, "preset": spec.preset,
                                     "scene": spec.scene, "curve": curve, "final": curve[-1],
@@ -322,11 +329,9 @@ def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
                 progress.update(task, description=f"{spec.backbone}/{spec.method} {spec.hdr_view_ratio} "
                                                   f"losses={spec.losses} t{2 * index + 1}")
                 run = replace(spec, exposure_index=index)
-                trainer = build_run(run, scenes.get(spec.scene, index), steps[spec.backbone], config.out / "runs",
-                                    max_eval_views)
-                trainer.config.max_steps = steps[spec.backbone]
-                while trainer.step < trainer.config.max_steps:
-                    trainer.train_step()
+                trainer = build_run(run, scenes.get(spec.scene, index), config.out / "runs", max_eval_views,
+                                    max_steps=steps[spec.backbone])
+                trainer.fit()
                 per_exposure.append(trainer.evaluate())
                 progress.advance(task)
             finished[key] = _average_runs(per_exposure)
@@ -387,22 +392,17 @@ def write_paper_report(results: dict, out: Path) -> None:
     console.print("\n".join(lines))
 
 
-# ------------------------------------------------------------------------------ raster
-@dataclass
-class BenchRasterConfig:
-    """3DGS rasteriser: C++ kernel vs pure-torch twin, 3 vs 6 channels, side by side."""
-
-    out: Path = Path("benchmarks/results")
-    """Folder for raster.json."""
-    repeats: int = 5
-    """Timed runs per measurement (median), after a warm-up."""
+BENCHMARKS = {"curves": (BenchCurvesConfig, bench_curves), "paper": (BenchPaperConfig, bench_paper)}
 
 
-def bench_raster(config: BenchRasterConfig) -> list[dict]:
-    from backbones.gs.benchmark import bench_raster as run  # noqa: PLC0415 - the gs backbone owns its kernel
-
-    return run(config.out, repeats=config.repeats)
-
-
-BENCHMARKS = {"curves": (BenchCurvesConfig, bench_curves), "paper": (BenchPaperConfig, bench_paper),
-              "raster": (BenchRasterConfig, bench_raster)}
+def all_benchmarks() -> dict[str, tuple[type, Any]]:
+    """The benchmarks every pipeline has, plus those each registered backbone contributes
+    (`Backbone.benchmarks`, e.g. the 3DGS rasteriser's `raster`)."""
+    found = dict(BENCHMARKS)
+    for entry in BACKBONES.available().values():
+        for name, benchmark in entry.plugin.benchmarks().items():
+            if name in found:
+                raise ValueError(f"backbone {entry.name!r} contributes a benchmark named {name!r}, which exists "
+                                 "already; rename it")
+            found[name] = benchmark
+    return found

@@ -137,6 +137,13 @@ class GaussianBackbone(Backbone):
                               max_screen_size=c.max_screen_size, max_gaussians=c.max_gaussians)
 
     @classmethod
+    def benchmarks(cls) -> dict:
+        """`mono-hdr bench raster`: the C++ kernel against its torch twin, 3 vs 6 channels."""
+        from backbones.gs.benchmark import BenchRasterConfig, bench_raster_command  # noqa: PLC0415
+
+        return {"raster": (BenchRasterConfig, bench_raster_command)}
+
+    @classmethod
     def presets(cls) -> dict[str, GaussianConfig]:
         """paper: the official 3DGS recipe (30k steps, scaled to the run length)."""
         return {"paper": GaussianConfig()}
