@@ -32,8 +32,11 @@ from mono_hdr_plugin.train import Trainer, TrainingHook, train_config_for
 
 console = Console()
 
-# The paper's Mono-HDR-GS / HDR-GS figures (REFERENCE.md section 3), HDR PSNR in dB.
-PAPER_TABLE1 = {("nerf", "hdr-nerf"): 13.76, ("nerf", "mono"): 32.86, ("gs", "hdr-gs"): 35.30, ("gs", "mono"): 38.57}
+# The paper's figures (docs/method.md), HDR PSNR in dB, by the paper's backbone rows; a registered
+# backbone reproduces a row through its `paper_backbone`. The ablations are the paper's 3DGS ones.
+PAPER_BASELINE = {"NeRF": "hdr-nerf", "3DGS": "hdr-gs"}
+PAPER_TABLE1 = {("NeRF", "hdr-nerf"): 13.76, ("NeRF", "mono"): 32.86, ("3DGS", "hdr-gs"): 35.30,
+                ("3DGS", "mono"): 38.57}
 PAPER_CONVERTERS = {"mlp-l2h": 19.02, "mlp-h2l": 38.43, "no-h2l": 38.19, "mono": 38.57}
 LOSS_ROWS = {  # name -> (L_ldr, L_hdr, L_h2l), paper figure (None: "fails to train", no figure)
     "ldr": ((True, False, False), None), "hdr": ((False, True, False), 33.93),
@@ -43,6 +46,15 @@ LOSS_ROWS = {  # name -> (L_ldr, L_hdr, L_h2l), paper figure (None: "fails to tr
 }
 PAPER_RATIOS = {"mono": {"1:1": 38.57, "2:1": 37.97, "3:1": 37.53, "5:1": 35.51, "0:1": 33.93, "1:0": 13.50},
                 "hdr-gs": {"1:1": 35.30, "2:1": 35.26, "3:1": 35.16, "5:1": 34.89, "0:1": 33.46, "1:0": 10.51}}
+
+
+def paper_backbones() -> dict[str, str]:
+    """The paper's backbone rows ("NeRF", "3DGS") -> the first registered backbone reproducing each."""
+    found: dict[str, str] = {}
+    for name, entry in BACKBONES.available().items():
+        if entry.plugin.paper_backbone is not None:
+            found.setdefault(entry.plugin.paper_backbone, name)
+    return found
 
 
 def run_facts() -> dict[str, Any]:
@@ -170,12 +182,12 @@ class BenchCurvesConfig:
     """Folder for curves.json, curves.md and the plots."""
     quick: bool = False
     """A size that finishes in minutes on 2 cores."""
-    backbones: tuple[str, ...] = ("gs", "nerf")
-    """Backbones to compare."""
+    backbones: tuple[str, ...] = ()
+    """Backbones to compare (default: every backbone that reproduces one of the paper's)."""
     methods: tuple[str, ...] = ("mono", "hdr-gs", "hdr-nerf")
     """Methods to compare."""
-    nerf_presets: tuple[str, ...] = ("fast",)
-    """NeRF presets (paper costs ~2 s a step on CPU)."""
+    presets: tuple[str, ...] = ()
+    """BACKBONE=PRESET pairs (`mono-hdr backbones` lists presets); others run their default preset."""
     scenes: tuple[str, ...] = ("demo",)
     """Studio scenes."""
     budget_seconds: float | None = None
@@ -189,8 +201,10 @@ class BenchCurvesConfig:
 def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
     budget = config.budget_seconds or (60.0 if config.quick else 600.0)
     max_eval_views = config.max_eval_views or (4 if config.quick else None)
-    specs = [RunSpec(backbone=b, method=m, preset=p, scene=s) for s in config.scenes for b in config.backbones
-             for p in (config.nerf_presets if b == "nerf" else (None,)) for m in config.methods]
+    backbones = config.backbones or tuple(paper_backbones().values())
+    presets = parse_presets(config.presets)
+    specs = [RunSpec(backbone=b, method=m, preset=presets.get(b), scene=s) for s in config.scenes for b in backbones
+             for m in config.methods]
     results = {"facts": run_facts(), "budget_seconds": budget, "runs": []}
     scenes = SceneCache()
     with Progress(console=console) as progress, _report_on_exit(lambda: write_curves_report(results, config.out)):
@@ -208,6 +222,18 @@ def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
             write_json(config.out / "curves.json", results)
             progress.advance(task)
     return results
+
+
+def parse_presets(pairs: tuple[str, ...]) -> dict[str, str]:
+    """("nerf=paper", ...) -> {"nerf": "paper"}, each checked against the backbone's presets."""
+    presets = {}
+    for pair in pairs:
+        backbone, _, preset = pair.partition("=")
+        if preset not in get_backbone(backbone).presets():
+            raise ValueError(f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
+                             f"{', '.join(get_backbone(backbone).presets())}")
+        presets[backbone] = preset
+    return presets
 
 
 @contextlib.contextmanager
@@ -283,12 +309,10 @@ class BenchPaperConfig:
     """Studio scene."""
     exposure_indices: tuple[int, ...] | None = None
     """Exposures t1/t3/t5 (0, 1, 2) to average over (default: t3 quick, all three full)."""
-    gs_steps: int | None = None
-    """Training steps per 3DGS row (default 300 quick, 3000 full)."""
-    nerf_steps: int | None = None
-    """Training steps per NeRF row (default 300 quick, 3000 full)."""
-    nerf_preset: str = "fast"
-    """NeRF preset for Table 1."""
+    steps: int | None = None
+    """Training steps per row (default 300 quick, 3000 full)."""
+    presets: tuple[str, ...] = ()
+    """BACKBONE=PRESET pairs; other backbones run their default preset."""
     max_eval_views: int | None = None
     """Test views per evaluation (default 6 quick, all full)."""
     tables: tuple[Literal["table1", "converters", "losses", "ratios"], ...] = ("table1", "converters", "losses", "ratios")
@@ -296,24 +320,28 @@ class BenchPaperConfig:
 
 
 def paper_specs(config: BenchPaperConfig) -> dict[str, list[tuple[str, RunSpec, float | None]]]:
-    """table -> [(variant, spec without exposure, paper figure)]."""
-    tables = {
-        "table1": [(m, RunSpec("nerf", m, preset=config.nerf_preset, scene=config.scene), PAPER_TABLE1[("nerf", m)])
-                   for m in ("hdr-nerf", "mono")] + [
-                  (m, RunSpec("gs", m, scene=config.scene), PAPER_TABLE1[("gs", m)]) for m in ("hdr-gs", "mono")],
-        "converters": [(m, RunSpec("gs", m, scene=config.scene), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS],
-        "losses": [(name, RunSpec("gs", "mono", scene=config.scene, losses=switches), figure)
-                   for name, (switches, figure) in LOSS_ROWS.items()],
-        "ratios": [(f"{m} {r}", RunSpec("gs", m, scene=config.scene, hdr_view_ratio=r), PAPER_RATIOS[m][r])
-                   for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]],
-    }
+    """table -> [(variant, spec without exposure, paper figure)], on the backbones reproducing the paper's."""
+    backbones, presets = paper_backbones(), parse_presets(config.presets)
+
+    def spec(row: str, method: str, **options) -> RunSpec:
+        return RunSpec(backbones[row], method, preset=presets.get(backbones[row]), scene=config.scene, **options)
+
+    tables = {"table1": [(m, spec(row, m), PAPER_TABLE1[(row, m)]) for row in PAPER_BASELINE if row in backbones
+                         for m in (PAPER_BASELINE[row], "mono")]}
+    if "3DGS" in backbones:
+        tables |= {
+            "converters": [(m, spec("3DGS", m), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS],
+            "losses": [(name, spec("3DGS", "mono", losses=switches), figure)
+                       for name, (switches, figure) in LOSS_ROWS.items()],
+            "ratios": [(f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r])
+                       for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]],
+        }
     return {name: rows for name, rows in tables.items() if name in config.tables}
 
 
 def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
     exposures = config.exposure_indices or ((1,) if config.quick else (0, 1, 2))
-    steps = {"gs": config.gs_steps or (300 if config.quick else 3000),
-             "nerf": config.nerf_steps or (300 if config.quick else 3000)}
+    steps = config.steps or (300 if config.quick else 3000)
     max_eval_views = config.max_eval_views or (6 if config.quick else None)
     tables = paper_specs(config)
     unique = {spec.key: spec for rows in tables.values() for _, spec, _ in rows}
@@ -330,7 +358,7 @@ def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
                                                   f"losses={spec.losses} t{2 * index + 1}")
                 run = replace(spec, exposure_index=index)
                 trainer = build_run(run, scenes.get(spec.scene, index), config.out / "runs", max_eval_views,
-                                    max_steps=steps[spec.backbone])
+                                    max_steps=steps)
                 trainer.fit()
                 per_exposure.append(trainer.evaluate())
                 progress.advance(task)

@@ -89,6 +89,7 @@ class GaussianBackbone(Backbone):
 
     config_class = GaussianConfig
     loss_kind = "l1_dssim"
+    paper_backbone = "3DGS"
     pixel_batch = None
 
     def __init__(self, config: GaussianConfig, scene: SceneInfo):
