@@ -27,12 +27,13 @@ class KnownRenderConfig:
 
 
 def known_ldr(camera: Camera) -> torch.Tensor:
-    """The LDR colour [H, W, 3] of every pixel: ramps across the image, brighter for cameras at larger x."""
-    ys, xs = torch.meshgrid(torch.arange(camera.height, dtype=torch.float32),
-                            torch.arange(camera.width, dtype=torch.float32), indexing="ij")
+    """The LDR colour [*camera.output_shape, 3] of every pixel: ramps across the image, brighter for
+    cameras at larger x."""
+    pixels = camera.pixel_centers() - 0.5
+    xs, ys = pixels[:, 0], pixels[:, 1]
     level = 0.3 + 0.05 * camera.c2w[0, 3].float()
     channels = [level + 0.3 * xs / camera.width * (c + 1) / 3 + 0.15 * ys / camera.height for c in range(3)]
-    return torch.stack(channels, -1).clamp(0.02, 0.95)
+    return torch.stack(channels, -1).clamp(0.02, 0.95).reshape(*camera.output_shape, 3)
 
 
 @register_backbone("known-render")
@@ -50,7 +51,7 @@ class KnownRenderBackbone(Backbone):
         colors = known_ldr(camera).reshape(-1, 1, 3)
 
         def composite(values: torch.Tensor) -> torch.Tensor:
-            return values.reshape(camera.height, camera.width, values.shape[-1])
+            return values.reshape(*camera.output_shape, values.shape[-1])
 
         return LdrFeatures(colors=colors, raw_colors=torch.logit(colors), composite=composite)
 
