@@ -95,7 +95,7 @@ def _mean(values: list[float]) -> float:
 def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> list[Path]:
     """save_hdr_renders plus <stem>_ldr.png, the LDR render at the view's exposure."""
     path = render_dir / f"{view.stem}_ldr.png"
-    write_png(path, output.ldr.clamp(0, 1).numpy())
+    write_png(path, output.ldr.numpy())  # write_png clips to [0, 1]
     return [*save_hdr_renders(render_dir, view, output.hdr), path]
 
 

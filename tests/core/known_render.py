@@ -23,7 +23,11 @@ SIZE = 16
 
 @dataclass
 class KnownRenderConfig:
-    """No options: the render is a fixed function of the camera."""
+    """The render is a fixed function of the camera."""
+
+    brightness: float = 1.0
+    """Scales every colour; above 1 some LDR pixels leave [0, 1] (for Mono-HDR only: the baselines
+    read colours as logit(c))."""
 
 
 def known_ldr(camera: Camera) -> torch.Tensor:
@@ -48,7 +52,7 @@ class KnownRenderBackbone(Backbone):
         self.unused = nn.Parameter(torch.zeros(1))  # Adam needs a parameter; it does not shape the render
 
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
-        colors = known_ldr(camera).reshape(-1, 1, 3)
+        colors = self.config.brightness * known_ldr(camera).reshape(-1, 1, 3)
 
         def composite(values: torch.Tensor) -> torch.Tensor:
             return values.reshape(*camera.output_shape, values.shape[-1])
@@ -63,9 +67,9 @@ def zero_method(pipeline) -> None:
             parameter.zero_()
 
 
-def expected_render(camera: Camera, method: str) -> tuple[np.ndarray, np.ndarray]:
+def expected_render(camera: Camera, method: str, brightness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(LDR, HDR) the zeroed method renders for `camera`, in float64, from the closed forms above."""
-    c = known_ldr(camera).double().numpy()
+    c = brightness * known_ldr(camera).double().numpy()
     if method in ("hdr-gs", "hdr-nerf"):
         return np.full_like(c, 0.5), c / (1 - c)
     return c, np.log1p(np.exp(c))

@@ -5,18 +5,21 @@ scikit-image, view by view; the averages are then taken by hand: LDR per exposur
 views, the headline LDR over the training exposures, HDR over cameras (one view each).
 """
 
+import importlib.util
 import json
 import math
 
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from known_render import KnownRenderConfig, camera_at, expected_render, ground_truth, known_scene, zero_method
 from mono_hdr_plugin.cli import main
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.evaluation import evaluate
 from mono_hdr_plugin.methods import MethodConfig
@@ -36,14 +39,21 @@ def ssim_3dgs(a: np.ndarray, b: np.ndarray) -> float:
                                  data_range=1.0, channel_axis=-1)
 
 
-def expected_row(view, method: str, scored_hdr: bool) -> dict[str, float]:
-    """The figures of one view, from the closed-form render and the view's ground truth."""
-    ldr, hdr = expected_render(view.camera, method)
+def tone_mapped_own_max(hdr: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The GS evaluation's images: prediction over its own max, ground truth over its max in 8 bits."""
+    return mu_law(hdr / hdr.max()), np.round(mu_law(gt / gt.max()) * 255) / 255
+
+
+def expected_row(view, method: str, scored_hdr: bool, brightness: float = 1.0) -> dict[str, float]:
+    """The figures of one view, from the closed-form render and the view's ground truth; the LDR
+    render is scored clipped to [0, 1]."""
+    ldr, hdr = expected_render(view.camera, method, brightness)
+    ldr = np.clip(ldr, 0.0, 1.0)
     photo = view.image.double().numpy()
     row = {"ldr_psnr": peak_signal_noise_ratio(photo, ldr, data_range=1.0), "ldr_ssim": ssim_3dgs(ldr, photo)}
     if scored_hdr:
         gt = view.hdr.double().numpy()
-        own_pred, own_gt = mu_law(hdr / hdr.max()), np.round(mu_law(gt / gt.max()) * 255) / 255
+        own_pred, own_gt = tone_mapped_own_max(hdr, gt)
         by_gt_pred, by_gt_gt = mu_law(np.clip(hdr / gt.max(), 0, 1)), mu_law(gt / gt.max())
         row.update(hdr_psnr=peak_signal_noise_ratio(own_gt, own_pred, data_range=1.0),
                    hdr_ssim=ssim_3dgs(own_pred, own_gt),
@@ -52,20 +62,23 @@ def expected_row(view, method: str, scored_hdr: bool) -> dict[str, float]:
     return row
 
 
-def known_pipeline(scene, method: str) -> Pipeline:
-    pipeline = Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method), scene.scene_info())
+def known_pipeline(scene, method: str, brightness: float = 1.0) -> Pipeline:
+    pipeline = Pipeline.create("known-render", KnownRenderConfig(brightness), MethodConfig(method=method),
+                               scene.scene_info())
     zero_method(pipeline)
     return pipeline
 
 
-def assert_rows(got: list[dict], views: list, method: str, hdr_views: set[tuple[int, float]]) -> list[dict]:
+def assert_rows(got: list[dict], views: list, method: str, hdr_views: set[tuple[int, float]],
+                brightness: float = 1.0) -> list[dict]:
     """`got` lists exactly `views` in order, each with its known figures; returns the expected rows."""
     assert [(r["view_id"], r["exposure"]) for r in got] == [(v.view_id, v.exposure) for v in views]
     expected = []
     for row, view in zip(got, views):
         scored = (view.view_id, view.exposure) in hdr_views
-        want = expected_row(view, method, scored)
+        want = expected_row(view, method, scored, brightness)
         assert row["view"] == view.stem
+        assert all(type(row[key]) is float for key in want), "figures must be plain floats (JSON)"
         assert {k for k in row if k.startswith("hdr_")} == (set(HDR_KEYS) if scored else set()), row["view"]
         for key, value in want.items():
             assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6), (row["view"], key)
@@ -142,11 +155,57 @@ class TestEvaluateKnownAnswer:
         with pytest.raises(ValueError, match="no test view at a training exposure"):
             evaluate(known_pipeline(scene, "mono"), scene)
 
+    def test_ldr_beyond_one_is_scored_clipped(self):
+        scene = known_scene()
+        metrics = evaluate(known_pipeline(scene, "mono", brightness=1.6), scene)
+        test = {(v.view_id, v.exposure): v for v in scene.test}
+        views = [test[key] for key in [(3, 2.0), (1, 0.5), (1, 2.0), (2, 0.5), (0, 0.5)]]
+        rows = assert_rows(metrics["views"], views, "mono", {(3, 2.0), (1, 0.5), (0, 0.5)}, brightness=1.6)
+        assert rows[0]["ldr_psnr"] < 15  # the render is far off, and clipped it is less so
+
     def test_renders_written_once_per_camera(self, tmp_path):
         scene = known_scene()
-        evaluate(known_pipeline(scene, "mono"), scene, render_dir=tmp_path)
-        stems = {path.name.split("_hdr")[0].split("_ldr")[0] for path in tmp_path.iterdir()}
-        assert stems == {"cam3_t2", "cam1_t1", "cam0_t1"}
+        evaluate(known_pipeline(scene, "mono", brightness=1.6), scene, render_dir=tmp_path)
+        stems = ["cam3_t2", "cam1_t1", "cam0_t1"]
+        assert sorted(path.name for path in tmp_path.iterdir()) == sorted(
+            f"{stem}{suffix}" for stem in stems for suffix in ("_ldr.png", "_hdr.exr", "_hdr_mulaw.png"))
+        test = {v.stem: v for v in scene.test}
+        for stem in stems:
+            ldr, hdr = expected_render(test[stem].camera, "mono", brightness=1.6)
+            np.testing.assert_allclose(read_exr(tmp_path / f"{stem}_hdr.exr"), hdr, rtol=1e-6)
+            ldr_png = np.asarray(Image.open(tmp_path / f"{stem}_ldr.png"), dtype=np.float64)
+            np.testing.assert_allclose(ldr_png, np.round(np.clip(ldr, 0, 1) * 255), atol=1)
+            mu_png = np.asarray(Image.open(tmp_path / f"{stem}_hdr_mulaw.png"), dtype=np.float64)
+            np.testing.assert_allclose(mu_png, np.round(mu_law(hdr / hdr.max()) * 255), atol=1)
+
+    def test_lpips_of_both_images(self, monkeypatch):
+        """With an LPIPS network (here one that measures mean absolute difference, as the real
+        weights are not on this machine) each view gets LDR and HDR distances, averaged like the rest."""
+        network = lambda a, b: (a - b).abs().mean()  # noqa: E731
+        monkeypatch.setattr("mono_hdr_plugin.evaluation.load_lpips", lambda: network)
+        scene = known_scene()
+        metrics = evaluate(known_pipeline(scene, "mono"), scene)
+        expected_ldr, expected_hdr = [], []
+        for row in metrics["views"]:
+            view = next(v for v in scene.test if (v.view_id, v.exposure) == (row["view_id"], row["exposure"]))
+            ldr, hdr = expected_render(view.camera, "mono")
+            expected_ldr.append(2 * np.abs(ldr - view.image.double().numpy()).mean())
+            assert row["lpips_ldr"] == pytest.approx(expected_ldr[-1], rel=1e-4)
+            if "hdr_psnr" in row:
+                expected_hdr.append(2 * np.abs(np.subtract(*tone_mapped_own_max(hdr, view.hdr.double().numpy()))).mean())
+                assert row["lpips_hdr"] == pytest.approx(expected_hdr[-1], rel=1e-4)
+            else:
+                assert "lpips_hdr" not in row
+        assert metrics["lpips_ldr"] == pytest.approx(mean(expected_ldr), rel=1e-4)
+        assert metrics["lpips_hdr"] == pytest.approx(mean(expected_hdr), rel=1e-4)
+        assert "lpips_skipped" not in metrics
+
+    @pytest.mark.skipif(importlib.util.find_spec("lpips") is not None, reason="the lpips package is installed")
+    def test_lpips_unavailable_is_said(self):
+        scene = known_scene()
+        metrics = evaluate(known_pipeline(scene, "mono"), scene)
+        assert metrics["lpips_ldr"] is None and metrics["lpips_hdr"] is None
+        assert metrics["lpips_skipped"].startswith("LPIPS skipped")
 
 
 def captured_known_scene() -> CapturedScene:

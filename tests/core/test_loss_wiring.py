@@ -29,8 +29,9 @@ LN_5001 = math.log(5001.0)
 BACKBONES = {
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
     "gs": lambda: GaussianConfig(random_init_points=300),
-    "nerf": lambda: NerfConfig(field="paper", paper=MlpFieldConfig(width=16, coarse_samples=8, fine_samples=8,
-                                                                   rays_per_step=48)),
+    "nerf": lambda: NerfConfig(field="paper", paper=MlpFieldConfig(
+        depth=3, width=8, skip_layer=1, xyz_frequencies=3, dir_frequencies=2, density_activation="softplus",
+        coarse_samples=4, fine_samples=4, rays_per_step=32)),
 }
 BETA = {"voxel-grid": 0.01, "nerf": 0.01, "gs": 0.05}  # the paper's beta of each backbone's loss
 

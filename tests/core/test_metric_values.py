@@ -7,14 +7,15 @@ argument or a metric computed against the wrong image moves these numbers.
 """
 
 import math
+import sys
 
 import numpy as np
 import pytest
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from mono_hdr_plugin.metrics import (hdr_metrics, lpips_distance, mu_law, normalise_hdr, psnr, ssim,
-                                     tone_mapped_pair)
+from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, mu_law,
+                                     normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair)
 
 LN_5001 = math.log(5001.0)
 
@@ -61,6 +62,15 @@ class TestMuLawByHand:
         negative = normalise_hdr(torch.tensor([-1.0, 2.0], dtype=torch.float64))
         assert negative.tolist() == [0.0, 1.0]
 
+    def test_images_dimmer_than_one(self):
+        hdr = torch.tensor([0.0, 0.01, 0.25], dtype=torch.float64)
+        torch.testing.assert_close(normalise_hdr(hdr), torch.from_numpy(mu_law_numpy(hdr.numpy() / 0.25)))
+
+    @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.float32])
+    def test_all_zero_stays_zero_in_every_precision(self, dtype):
+        out = normalise_hdr(torch.zeros(4, 4, 3, dtype=dtype))
+        assert out.dtype == dtype and not out.isnan().any() and not out.any()
+
     def test_half_precision_is_computed_in_float32(self):
         hdr = torch.tensor([1e-4, 1.0, 60000.0], dtype=torch.float16)
         got = normalise_hdr(hdr)
@@ -97,6 +107,18 @@ class TestLdrMetricsAgainstScikitImage:
         expected = skimage_ssim(pred, target)
         assert 0.3 < expected < 0.99
         assert ssim(torch.from_numpy(pred), torch.from_numpy(target)).item() == pytest.approx(expected, abs=1e-10)
+
+    def test_ssim_map_mean_is_skimage_ssim(self, pair):
+        pred, target = pair
+        window_map = ssim_map(torch.from_numpy(pred), torch.from_numpy(target))
+        assert window_map.shape == (24 - 10, 20 - 10, 3)
+        assert window_map.mean().item() == pytest.approx(skimage_ssim(pred, target), abs=1e-10)
+
+    @pytest.mark.parametrize("size", [(10, 30), (30, 10)])
+    def test_ssim_needs_the_whole_window(self, size):
+        with pytest.raises(ValueError, match="at least 11 pixels per side, got"):
+            ssim_map(torch.rand(*size, 3), torch.rand(*size, 3))
+        assert ssim_map(torch.rand(11, 11, 3), torch.rand(11, 11, 3)).shape == (1, 1, 3)
 
     def test_ssim_data_range(self, pair):
         pred, target = pair
@@ -166,6 +188,10 @@ class TestHdrPairWorkedByHand:
     def test_float32_input_gives_the_same_figures(self):
         pred, gt = two_region_pair(torch.float32)
         metrics = hdr_metrics(pred, gt)
+        assert all(type(value) is float for value in metrics.values())
+        in_double = hdr_metrics(*two_region_pair(torch.float64))
+        assert metrics["hdr_ssim"] == pytest.approx(in_double["hdr_ssim"], abs=1e-6)
+        assert metrics["hdr_ssim_gt_max"] == pytest.approx(in_double["hdr_ssim_gt_max"], abs=1e-6)
         assert metrics["hdr_psnr"] == pytest.approx(-10 * math.log10(self.OWN_MAX_ERROR**2 / 2), rel=1e-5)
         assert metrics["hdr_psnr_gt_max"] == pytest.approx(-10 * math.log10(self.GT_MAX_ERROR**2 / 2), rel=1e-5)
 
@@ -223,8 +249,41 @@ class TestLpipsInputs:
         pred = torch.rand(6, 5, 3)
         target = torch.zeros(6, 5, 3)
         distance = lpips_distance(network, pred, target)
+        assert type(distance) is float
         a, b = network.inputs[0]
         assert a.shape == (1, 3, 6, 5)
         torch.testing.assert_close(a[0], pred.permute(2, 0, 1) * 2 - 1)
         torch.testing.assert_close(b, -torch.ones(1, 3, 6, 5))
         assert distance == pytest.approx(2 * pred.mean().item(), rel=1e-5)
+
+
+class FakeLpipsPackage:
+    """Stands in for the `lpips` package: records how the network is asked for."""
+
+    def __init__(self, fail: bool = False):
+        self.fail, self.requests = fail, []
+
+    def LPIPS(self, **options):  # noqa: N802 - the package's name
+        self.requests.append(options)
+        if self.fail:
+            raise OSError("no internet to download alexnet weights")
+        return RecordingNetwork()
+
+
+class TestLoadLpips:
+    @pytest.fixture(autouse=True)
+    def fresh_cache(self):
+        load_lpips.cache_clear()
+        yield
+        load_lpips.cache_clear()
+
+    def test_asks_for_the_pretrained_alexnet_quietly(self, monkeypatch):
+        package = FakeLpipsPackage()
+        monkeypatch.setitem(sys.modules, "lpips", package)
+        assert isinstance(load_lpips(), RecordingNetwork)
+        assert package.requests == [{"net": "alex", "verbose": False, "pretrained": True}]
+
+    def test_missing_weights_are_reported_not_downloaded(self, monkeypatch):
+        monkeypatch.setitem(sys.modules, "lpips", FakeLpipsPackage(fail=True))
+        with pytest.raises(LpipsUnavailable, match="weights are not available locally"):
+            load_lpips()
