@@ -345,7 +345,7 @@ def run_tests(target: Target, code, timeout: float, log: Path) -> tuple[str, flo
 
 
 def summary(mutants: list[Mutant]) -> str:
-    rows = ["| target | mutants | killed | survived | kill rate |", "|---|---|---|---|---|"]
+    rows = ["| target | mutants | killed | of them by timeout | survived | kill rate |", "|---|---|---|---|---|---|"]
     by_target: dict[str, list[Mutant]] = {}
     for mutant in mutants:
         by_target.setdefault(mutant.target, []).append(mutant)
@@ -353,7 +353,8 @@ def summary(mutants: list[Mutant]) -> str:
         ran = [m for m in items if m.status != "not run"]
         killed = sum(m.status in ("killed", "timeout") for m in ran)
         rate = f"{100 * killed / len(ran):.1f} %" if ran else "-"
-        rows.append(f"| {name} | {len(ran)} | {killed} | {len(ran) - killed} | {rate} |")
+        timeouts = sum(m.status == "timeout" for m in ran)
+        rows.append(f"| {name} | {len(ran)} | {killed} | {timeouts} | {len(ran) - killed} | {rate} |")
     survivors = [m for m in mutants if m.status == "survived"]
     if survivors:
         rows += ["", "Survivors:", ""]
@@ -361,11 +362,19 @@ def summary(mutants: list[Mutant]) -> str:
     return "\n".join(rows)
 
 
+def _combined(earlier: list[Mutant], latest: list[Mutant]) -> list[Mutant]:
+    """The earlier run's mutants with the latest results in place of theirs."""
+    fresh = {(m.target, m.id, m.description): m for m in latest}
+    merged = [fresh.pop((m.target, m.id, m.description), m) for m in earlier]
+    return merged + list(fresh.values())
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--targets", nargs="*", choices=sorted(TARGETS), help="default: all")
     parser.add_argument("--ids", nargs="*", type=int, help="run only these mutant ids (of one target)")
-    parser.add_argument("--rerun", type=Path, help="results.json of an earlier run: run its survivors again")
+    parser.add_argument("--rerun", type=Path,
+                        help="results.json of an earlier run: run its survivors and timeouts again")
     parser.add_argument("--list", action="store_true", help="list the mutants and stop")
     parser.add_argument("--out", type=Path, default=ROOT / "outputs" / "mutants")
     args = parser.parse_args()
@@ -374,10 +383,11 @@ def main() -> int:
     mutants = [m for name in names for m in enumerate_mutants(name, TARGETS[name])]
     if args.ids is not None:
         mutants = [m for m in mutants if m.id in args.ids]
-    if args.rerun is not None:
-        earlier = {(m["target"], m["id"], m["description"]) for m in json.loads(args.rerun.read_text())["mutants"]
-                   if m["status"] == "survived"}
-        mutants = [m for m in mutants if (m.target, m.id, m.description) in earlier]
+    earlier: list[Mutant] = []
+    if args.rerun is not None:  # the earlier run's mutants are reported too, with the new results
+        earlier = [Mutant(**m) for m in json.loads(args.rerun.read_text())["mutants"]]
+        again = {(m.target, m.id, m.description) for m in earlier if m.status in ("survived", "timeout")}
+        mutants = [m for m in mutants if (m.target, m.id, m.description) in again]
     if args.list:
         for m in mutants:
             print(f"{m.target} #{m.id} line {m.line}: {m.description}: {m.source_line}")
@@ -399,14 +409,14 @@ def main() -> int:
         target = TARGETS[mutant.target]
         code = mutated_code(target, mutant.id)
         mutant.status, mutant.seconds, mutant.killed_by = run_tests(
-            target, code, 3 * baseline[mutant.target] + 30, args.out / "mutant.log")
+            target, code, 5 * baseline[mutant.target] + 120, args.out / "mutant.log")
         print(f"[{count}/{len(mutants)}] {mutant.status:8s} {mutant.target} #{mutant.id} line {mutant.line}: "
               f"{mutant.description} ({mutant.seconds:.1f} s)", flush=True)
         (args.out / "results.json").write_text(json.dumps(
             {"baseline_seconds": baseline, "elapsed_seconds": time.perf_counter() - started,
-             "mutants": [asdict(m) for m in mutants]}, indent=1))
+             "mutants": [asdict(m) for m in _combined(earlier, mutants)]}, indent=1))
     print(f"\n{len(mutants)} mutants in {time.perf_counter() - started:.0f} s\n")
-    print(summary(mutants))
+    print(summary(_combined(earlier, mutants)))
     return 0
 
 
