@@ -114,7 +114,7 @@ class GaussianBackbone(Backbone):
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
         if scene.points is not None and len(scene.points) > 0:
-            points = scene.points.detach().float().reshape(-1, 3)
+            points = scene.points.detach().float().reshape(-1, 3).clone()  # training moves the means in place
             if scene.point_colors is None:
                 return points, torch.full_like(points, 0.5)
             colors = scene.point_colors.detach().reshape(-1, 3)
@@ -159,6 +159,9 @@ class GaussianBackbone(Backbone):
     @property
     def num_gaussians(self) -> int:
         return self.means.shape[0]
+
+    def statistics(self) -> dict[str, float]:
+        return {"gaussians": self.num_gaussians}
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
