@@ -7,7 +7,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Callable
 
 import torch
 import tyro
@@ -69,6 +69,12 @@ class TrainConfig:
     """Stop after this many consecutive steps with a non-finite loss or gradient."""
     quiet: bool = False
     """No progress bar (tests, benchmarks)."""
+    viewer: bool = False
+    """Watch training live in the browser (see `mono-hdr view --help`); it stays open after training."""
+    viewer_port: int = 7007
+    """Port of the --viewer (the next free one when taken)."""
+    viewer_host: str = "127.0.0.1"
+    """Address the --viewer listens on; anything but localhost opens it to the network."""
 
 
 class TrainingDiverged(RuntimeError):
@@ -152,6 +158,8 @@ class Trainer:
         self.train_seconds = 0.0
         self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
+        # Called with the trainer after every completed step (the viewer's snapshots).
+        self.step_hooks: list[Callable[["Trainer"], None]] = []
 
     @property
     def finished(self) -> bool:
@@ -261,6 +269,8 @@ class Trainer:
                 failures = 0
                 progress.update(task, completed=self.step, total=self.run_length, loss=record["loss"],
                                 psnr=record["ldr_psnr"])
+                for hook in self.step_hooks:
+                    hook(self)
                 if config.eval_every and self.step % config.eval_every == 0 and not self.finished:
                     metrics = self.evaluate(save_renders=False)
                     self.history.append(metrics)
