@@ -289,7 +289,7 @@ class Viewer:
 
     def _add_controls(self, max_resolution: int, training: bool) -> None:
         gui = self.server.gui
-        gui.configure_theme(control_layout="collapsible", dark_mode=True, show_share_button=False)
+        gui.configure_theme(dark_mode=True, show_share_button=False)
         self.status = gui.add_markdown("")
         if training:
             self.training_status = gui.add_markdown("**Training:** waiting for the first snapshot")
