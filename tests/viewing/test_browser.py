@@ -12,7 +12,7 @@ import urllib.request
 import numpy as np
 import pytest
 
-from browser import chromium_available, screenshot_when
+from browser_screenshot import chromium_available, screenshot_when  # examples/, on sys.path via conftest
 from mono_hdr_plugin.cli import main
 
 pytestmark = [pytest.mark.slow,

@@ -1,4 +1,5 @@
-"""Headless Chromium (Debian's chromium + chromium-driver) driven by selenium: page screenshots."""
+"""Screenshots of a web page in headless Chromium (Debian's chromium + chromium-driver, driven by
+selenium): the viewer's browser test and the README's viewer picture use it."""
 
 import shutil
 import tempfile
@@ -18,9 +19,10 @@ def chromium_available() -> bool:
 
 
 def screenshot_when(url: str, path: Path, ready, timeout: float = 120.0, size: tuple[int, int] = (1200, 800),
-                    settle: float = 1.0) -> np.ndarray:
+                    settle: float = 1.0, script: str | None = None) -> np.ndarray:
     """Load `url`, then screenshot it every second until `ready(pixels)` holds (or the timeout
-    passes); the last screenshot is written to `path` and returned as uint8 [H, W, 3]."""
+    passes); the last screenshot is written to `path` and returned as uint8 [H, W, 3]. `script`:
+    JavaScript run before each screenshot (to close a notification, say)."""
     from PIL import Image  # noqa: PLC0415
     from selenium import webdriver  # noqa: PLC0415
     from selenium.webdriver.chrome.service import Service  # noqa: PLC0415
@@ -36,6 +38,8 @@ def screenshot_when(url: str, path: Path, ready, timeout: float = 120.0, size: t
         deadline = time.monotonic() + timeout
         while True:
             time.sleep(settle)
+            if script:
+                driver.execute_script(script)
             driver.save_screenshot(str(path))
             pixels = np.asarray(Image.open(path).convert("RGB"))
             if ready(pixels) or time.monotonic() > deadline:
