@@ -43,8 +43,7 @@ HDR_RECIPES = {
 
 @dataclass
 class ExportConfig:
-    """Export a checkpoint: 3DGS as a standard splat PLY plus its HDR converters, other backbones
-    as a coloured point cloud PLY."""
+    """Export a checkpoint: 3DGS as a standard splat PLY with its HDR converters, others as a point cloud."""
 
     checkpoint: Path
     """A checkpoint written by `mono-hdr train`."""

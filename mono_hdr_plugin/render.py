@@ -24,8 +24,9 @@ console = Console(stderr=True)
 
 @dataclass
 class RenderConfig:
-    """Render a checkpoint: its test views (HDR EXR, LDR PNGs), a camera-path video (--path) or an
-    exposure sweep at one view (--sweep)."""
+    """Render a checkpoint: test views (EXR, PNGs), a camera-path video (--path) or an exposure sweep (--sweep).
+
+    Test views: <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png in OUT."""
 
     checkpoint: Path
     """A checkpoint written by `mono-hdr train`."""
