@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from browser_screenshot import screenshot_when
-from mono_hdr_plugin.camera_paths import unique_views
+from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.frames import load_model
 from mono_hdr_plugin.render import render_exposure_sweep
 from mono_hdr_plugin.viewer import VIEWER_OUTPUTS, ModelSnapshots, Viewer, ViewerRenderer
@@ -31,7 +31,7 @@ def main() -> None:
     parser.add_argument("--view", type=int, default=1, help="test camera of the sweep and the screenshot")
     args = parser.parse_args()
     model = load_model(args.checkpoint)
-    camera = unique_views(model.scene.test)[args.view].camera
+    camera = first_per_camera(model.scene.test)[args.view].camera
     strip_camera = camera.scaled(2.0)  # the dataset's 64 px are small on a page
 
     evs = np.linspace(-6, 6, 7).tolist()

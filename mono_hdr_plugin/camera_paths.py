@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from mono_hdr_plugin.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.evaluation import first_per_camera
 
 PathKind = Literal["dataset", "interpolate", "spiral"]
 
@@ -57,14 +58,6 @@ def viewer_from_camera(camera: Camera) -> ViewerCamera:
                         fov=2.0 * math.atan(0.5 * camera.height / camera.fy), aspect=camera.width / camera.height)
 
 
-def unique_views(views: list[View]) -> list[View]:
-    """One view per camera pose (view_id), in view_id order."""
-    chosen: dict[int, View] = {}
-    for view in views:
-        chosen.setdefault(view.view_id, view)
-    return [chosen[key] for key in sorted(chosen)]
-
-
 def scene_up(cameras: list[Camera]) -> torch.Tensor:
     """The world's up direction as the cameras hold it: the mean of their -y axes, unit length."""
     up = -torch.stack([c.c2w[:3, 1].float() for c in cameras]).mean(0)
@@ -96,17 +89,17 @@ def _with_pose(template: Camera, c2w: torch.Tensor, near: float, far: float) -> 
 
 
 def dataset_path(views: list[View], frames: int | None) -> list[Camera]:
-    """The dataset's cameras in view order; `frames` of them, evenly spread, when fewer are asked for."""
-    cameras = [view.camera for view in unique_views(views)]
+    """The dataset's cameras in its order; `frames` of them, evenly spread, when fewer are asked for."""
+    cameras = [view.camera for view in first_per_camera(views)]
     if frames is None or frames >= len(cameras):
         return cameras
     return [cameras[round(i * (len(cameras) - 1) / max(frames - 1, 1))] for i in range(frames)]
 
 
 def interpolate_path(views: list[View], frames: int) -> list[Camera]:
-    """`frames` cameras gliding through the dataset's cameras in view order: positions and
+    """`frames` cameras gliding through the dataset's cameras in its order: positions and
     intrinsics linear, rotations spherical-linear (slerp) between neighbours."""
-    keys = [view.camera for view in unique_views(views)]
+    keys = [view.camera for view in first_per_camera(views)]
     if len(keys) < 2:
         raise ValueError("--path interpolate needs at least two cameras in the split; use --path spiral")
     times = np.linspace(0.0, len(keys) - 1, frames)
@@ -135,7 +128,7 @@ def spiral_path(scene: SceneData, views: list[View], frames: int, rotations: flo
     forward-facing capture) circle `rotations` times around their mean position in its image
     plane, with radii from the spread of the cameras, as LLFF's spiral does.
     """
-    cameras = [view.camera for view in unique_views(views)]
+    cameras = [view.camera for view in first_per_camera(views)]
     template = cameras[0]
     near, far = min(c.near for c in cameras), max(c.far for c in cameras)
     focus, up = focus_point(scene, cameras), scene_up(cameras)

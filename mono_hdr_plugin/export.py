@@ -17,9 +17,9 @@ from plyfile import PlyData, PlyElement
 from rich.console import Console
 from torch import Tensor
 
-from mono_hdr_plugin.camera_paths import unique_views
 from mono_hdr_plugin.data.io import atomic_path
 from mono_hdr_plugin.display import to_display, to_uint8
+from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.frames import LoadedModel, load_model, render_frame
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig, build_method
 
@@ -71,7 +71,7 @@ def export_command(config: ExportConfig) -> None:
     else:
         cloud = point_cloud(model, config.scale, config.min_alpha, config.max_points)
         written = [write_point_cloud(config.out, *cloud)]
-        console.print(f"{cloud[0].shape[0]} points from {len(unique_views(model.scene.train))} training views")
+        console.print(f"{cloud[0].shape[0]} points from {len(first_per_camera(model.scene.train))} training views")
     for path in written:
         console.print(f"wrote {path}")
 
@@ -149,7 +149,7 @@ def point_cloud(model: LoadedModel, scale: float = 1.0, min_alpha: float = 0.5,
     """Points [N, 3], LDR colours [N, 3] in [0, 1] (the `ldr` output at the training exposure) and
     linear HDR [N, 3] where the training views' rays terminate."""
     points, colours, hdr = [], [], []
-    for view in unique_views(model.scene.train):
+    for view in first_per_camera(model.scene.train):
         camera = view.camera.scaled(scale) if scale != 1 else view.camera
         frame = render_frame(model.backbone, model.method, camera, model.exposure.reference_exposure)
         if frame.depth is None or frame.alpha is None:

@@ -168,11 +168,10 @@ class LoadedModel:
 
 def load_model(checkpoint: Path, scene: SceneData | None = None) -> LoadedModel:
     """A checkpoint written by `mono-hdr train`, on its own data unless `scene` is given."""
-    from mono_hdr_plugin.train import load_trained  # noqa: PLC0415 - training code is heavy to import
+    from mono_hdr_plugin.train import load_pipeline  # noqa: PLC0415 - training code is heavy to import
 
-    trainer, _ = load_trained(checkpoint, scene=scene)
-    trainer.backbone.eval()
-    trainer.method.eval()
-    return LoadedModel(backbone=trainer.backbone, method=trainer.method, scene=trainer.scene,
-                       backbone_name=trainer.backbone_name, step=trainer.step,
-                       exposure=calibrate(trainer.backbone, trainer.method, trainer.scene))
+    pipeline, scene, _, payload = load_pipeline(checkpoint, scene=scene)
+    pipeline.eval()
+    return LoadedModel(backbone=pipeline.backbone, method=pipeline.method, scene=scene,
+                       backbone_name=pipeline.backbone_name, step=payload["step"],
+                       exposure=calibrate(pipeline.backbone, pipeline.method, scene))

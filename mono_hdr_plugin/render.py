@@ -12,10 +12,11 @@ from PIL import Image, ImageDraw, ImageFont
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from mono_hdr_plugin.camera_paths import PathKind, camera_path, unique_views
+from mono_hdr_plugin.camera_paths import PathKind, camera_path
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
+from mono_hdr_plugin.evaluation import first_per_camera, save_hdr_renders
 from mono_hdr_plugin.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.frames import Frame, LoadedModel, load_model, render_frame
 
@@ -99,7 +100,7 @@ def render_command(config: RenderConfig) -> None:
         console.print(f"wrote {len(cameras)} frames to {video}"
                       + (f" and {config.exr_frames}" if config.exr_frames else ""))
         return
-    choices = unique_views(views)
+    choices = first_per_camera(views)
     if not 0 <= config.view < len(choices):
         raise ValueError(f"--view {config.view} is out of range: the {config.split} split has {len(choices)} cameras")
     camera = choices[config.view].camera
@@ -205,14 +206,11 @@ def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] 
     model = load_model(checkpoint, scene=scene)
     exposures = exposures or tuple(model.scene.train_exposures)
     written = []
-    for view in unique_views(model.scene.test)[:max_views]:
-        stem = view.stem
-        frame, mulaw = display_frame(model, view.camera, "hdr-mulaw", model.exposure.reference_exposure)
-        written += [out / f"{stem}_hdr.exr", out / f"{stem}_hdr_mulaw.png"]
-        write_exr(written[-2], frame.hdr.float().numpy())
-        write_png(written[-1], mulaw.astype(np.float32) / 255.0)
+    for view in first_per_camera(model.scene.test)[:max_views]:
+        frame = render_frame(model.backbone, model.method, view.camera, model.exposure.reference_exposure)
+        written += save_hdr_renders(out, view, frame.hdr)
         for exposure in exposures:
             frame, ldr = display_frame(model, view.camera, "ldr", exposure, cached=frame)
-            written.append(out / f"{stem}_ldr_{exposure:g}s.png")
+            written.append(out / f"{view.stem}_ldr_{exposure:g}s.png")
             write_png(written[-1], ldr.astype(np.float32) / 255.0)
     return written

@@ -29,15 +29,16 @@ import torch
 from rich.console import Console
 
 from mono_hdr_plugin.backbone import Backbone
-from mono_hdr_plugin.camera_paths import (ViewerCamera, camera_from_viewer, focus_point, scene_up, unique_views,
-                                         viewer_from_camera)
+from mono_hdr_plugin.camera_paths import ViewerCamera, camera_from_viewer, focus_point, scene_up, viewer_from_camera
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.display import OUTPUT_LABELS, colour_map, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.frames import ExposureModel, Frame, RenderCancelled, calibrate, load_model, render_frame
 from mono_hdr_plugin.methods import HdrMethod
 from mono_hdr_plugin.metrics import hdr_metrics, normalise_hdr, psnr
+from mono_hdr_plugin.train import TrainingHook
 
 console = Console(stderr=True)
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -105,8 +106,8 @@ class ModelSnapshots:
             return self._latest
 
 
-class SnapshotPublisher:
-    """A training step hook: publishes a copy of the model while someone watches.
+class SnapshotPublisher(TrainingHook):
+    """A training hook: publishes a copy of the model while someone watches.
 
     Copies are spaced so that copying takes at most 1/20 of the training time (and at least
     `min_interval` seconds apart): the viewer may lag, training barely notices.
@@ -119,7 +120,7 @@ class SnapshotPublisher:
         self.interval = min_interval
         self.published_at = -math.inf
 
-    def __call__(self, trainer) -> None:
+    def after_step(self, trainer, record: dict) -> None:
         now = time.perf_counter()
         if now - self.published_at < self.interval or not self.watched():
             return
@@ -151,7 +152,7 @@ class ViewerRenderer:
         self.near, self.far = min(c.near for c in cameras), max(c.far for c in cameras)
         self.up, self.focus = scene_up(cameras), focus_point(scene, cameras)
         self.views = {f"{split}: {view.stem}": view
-                      for split, views in (("train", scene.train), ("test", scene.test)) for view in unique_views(views)}
+                      for split, views in (("train", scene.train), ("test", scene.test)) for view in first_per_camera(views)}
         self._exposure_models: dict[int, ExposureModel] = {}
         self._exposure_lock = threading.Lock()
 
@@ -537,9 +538,8 @@ def train_with_viewer(trainer, report: Callable[[dict], None]) -> dict:
     viewer = Viewer(ViewerRenderer(snapshots, trainer.scene), host=config.viewer_host, port=config.viewer_port,
                     out=config.out / "viewer", training=True)
     console.print(f"[bold]viewer at {viewer.url}[/bold]")
-    trainer.step_hooks.append(SnapshotPublisher(snapshots, viewer.has_clients, viewer.training_step))
     try:
-        metrics = trainer.train()
+        metrics = trainer.train(extra_hooks=[SnapshotPublisher(snapshots, viewer.has_clients, viewer.training_step)])
         snapshots.publish(trainer.backbone, trainer.method, trainer.step)
         viewer.training_step(trainer.step)
         report(metrics)

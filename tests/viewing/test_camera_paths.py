@@ -8,7 +8,8 @@ import torch
 import viser.transforms as vtf
 
 from mono_hdr_plugin.camera_paths import (ViewerCamera, camera_from_viewer, camera_path, focus_point, scene_up,
-                                         unique_views, viewer_from_camera)
+                                         viewer_from_camera)
+from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.cameras import look_at
 
 
@@ -58,14 +59,14 @@ class TestPaths:
         assert scene_up(cameras) @ torch.tensor([0.0, 0.0, 1.0]) > 0.9  # the rig has z up
 
     def test_dataset_path_spreads_the_cameras(self, voxel_scene):
-        views = unique_views(voxel_scene.test)
+        views = first_per_camera(voxel_scene.test)
         assert [c.center.tolist() for c in camera_path("dataset", voxel_scene, voxel_scene.test, None)] == \
             [v.camera.center.tolist() for v in views]
         two = camera_path("dataset", voxel_scene, voxel_scene.test, 2)
         assert torch.equal(two[0].c2w, views[0].camera.c2w) and torch.equal(two[1].c2w, views[-1].camera.c2w)
 
     def test_interpolation_starts_and_ends_on_dataset_cameras(self, voxel_scene):
-        views = unique_views(voxel_scene.train)
+        views = first_per_camera(voxel_scene.train)
         path = camera_path("interpolate", voxel_scene, voxel_scene.train, 13)
         assert len(path) == 13
         torch.testing.assert_close(path[0].c2w, views[0].camera.c2w, atol=1e-5, rtol=0)

@@ -10,7 +10,7 @@ from mono_hdr_plugin.camera_paths import ViewerCamera, viewer_from_camera
 from mono_hdr_plugin.display import to_uint8
 from mono_hdr_plugin.frames import RenderCancelled, render_frame, srgb_encode
 from mono_hdr_plugin.metrics import hdr_metrics
-from mono_hdr_plugin.train import render_full
+from mono_hdr_plugin.pipeline import Pipeline
 from mono_hdr_plugin.viewer import ModelSnapshots, SnapshotPublisher, Viewer, ViewerRenderer, letterbox
 
 # A browser camera: 10 degrees above the rig's plane, a wide 4:3 canvas.
@@ -23,10 +23,9 @@ def browser_camera(scene) -> ViewerCamera:
     return ViewerCamera(view.wxyz, view.position, view.fov, 4 / 3)
 
 
-@torch.no_grad()
 def reference(model, camera, exposure):
-    """The trainer's own whole-image render, independent of the viewer's code."""
-    return render_full(model.backbone, model.method, camera, exposure)
+    """The pipeline's own whole-image render, independent of the viewer's code."""
+    return Pipeline(model.backbone_name, model.backbone, model.method).render(camera, exposure)
 
 
 def renderer_of(model) -> ViewerRenderer:
@@ -132,8 +131,7 @@ class TestSnapshots:
         watched.config.out = tmp_path / "watched"
         snapshots = ModelSnapshots(watched.backbone, watched.method, 0)
         published = []
-        watched.step_hooks.append(SnapshotPublisher(snapshots, lambda: True, published.append, min_interval=0.0))
-        watched.train()
+        watched.train(extra_hooks=[SnapshotPublisher(snapshots, lambda: True, published.append, min_interval=0.0)])
         assert published[-1] == 6 and snapshots.latest().step == 6
         for name, value in plain.backbone.state_dict().items():
             torch.testing.assert_close(watched.backbone.state_dict()[name], value, rtol=0, atol=0)
@@ -146,7 +144,7 @@ class TestSnapshots:
         class Step:
             backbone, method, step = voxel_mono.backbone, voxel_mono.method, 9
 
-        publisher(Step())
+        publisher.after_step(Step(), {})
         assert snapshots.latest().version == 0
 
 
