@@ -456,12 +456,14 @@ class _ClientLoop(threading.Thread):
         frame_key = (viewer_camera, height, snapshot_version)
         cached = self._cache[1] if self._cache is not None and self._cache[0] == frame_key else None
         cancelled = (lambda: not self.running or self.camera_version != version) if full else None
+        output = viewer.output_key()
         with self._render_lock:
             started = time.perf_counter()
-            shown = renderer.render(viewer_camera, height, viewer.output_key(), float(viewer.ev.value),
-                                    cached=cached, cancelled=cancelled)
+            shown = renderer.render(viewer_camera, height, output, float(viewer.ev.value), cached=cached,
+                                    cancelled=cancelled)
             seconds = time.perf_counter() - started
-        if shown.frame is not None and shown.frame is not cached:
+        # error maps render the dataset camera, not this one: nothing to re-use or time
+        if shown.frame is not None and shown.frame is not cached and output not in ERROR_OUTPUTS:
             self._cache = (frame_key, shown.frame)
             rate = shown.frame.hdr.shape[0] * shown.frame.hdr.shape[1] / max(seconds, 1e-6)
             self.pixels_per_second = rate if self.pixels_per_second is None else 0.5 * (self.pixels_per_second + rate)
