@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 from rich.console import Console
+from rich.progress import track
 from torch import Tensor
 
 from mono_hdr_plugin.data.io import atomic_path
@@ -149,7 +150,8 @@ def point_cloud(model: LoadedModel, scale: float = 1.0, min_alpha: float = 0.5,
     """Points [N, 3], LDR colours [N, 3] in [0, 1] (the `ldr` output at the training exposure) and
     linear HDR [N, 3] where the training views' rays terminate."""
     points, colours, hdr = [], [], []
-    for view in first_per_camera(model.scene.train):
+    views = first_per_camera(model.scene.train)
+    for view in track(views, description="point cloud", console=console, transient=True):
         camera = view.camera.scaled(scale) if scale != 1 else view.camera
         frame = render_frame(model.backbone, model.method, camera, model.exposure.reference_exposure)
         if frame.depth is None or frame.alpha is None:
