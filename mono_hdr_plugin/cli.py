@@ -84,7 +84,7 @@ def command_eval(config: EvalConfig) -> None:
     run = load_pipeline(config.checkpoint, data_path=config.data, scene_name=config.scene)
     metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
                        render_dir=config.out / "renders" if config.save_renders else None)
-    metrics.update(steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
+    metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
     write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
 

@@ -22,7 +22,7 @@ from mono_hdr_plugin.data.io import atomic_path
 from mono_hdr_plugin.display import to_display, to_uint8
 from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.frames import LoadedModel, load_model, render_frame
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig, build_method
+from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
@@ -97,7 +97,7 @@ def save_converters(model: LoadedModel, ply: Path) -> tuple[Path, Path]:
     with atomic_path(weights_path) as temporary:
         with open(temporary, "wb") as handle:  # np.savez on a path would append another .npz
             np.savez(handle, **arrays)
-    kind = "baseline" if method.renders_any_exposure else "mono"
+    kind = "mono" if isinstance(method, MonoHDR) else "baseline" if isinstance(method, CrfBaseline) else None
     description = {
         "format": CONVERTERS_FORMAT,
         "version": CONVERTERS_VERSION,
@@ -106,7 +106,8 @@ def save_converters(model: LoadedModel, ply: Path) -> tuple[Path, Path]:
         "method": method.config.method,
         "method_config": asdict(method.config),
         "loss_kind": method.loss_kind,
-        "hdr_recipe": HDR_RECIPES[kind],
+        "hdr_recipe": HDR_RECIPES[kind] if kind else f"the registered method {method.config.method!r}: apply its "
+                                                      "forward to the Gaussians' colours (see its documentation)",
         "reference_exposure_seconds": model.exposure.reference_exposure,
         "display_scale": model.exposure.display_scale,
         "display": "at exposure t seconds a display shows srgb(display_scale * hdr * t / reference_exposure_seconds)",

@@ -306,7 +306,7 @@ class Trainer:
         """Test-view metrics of the current model (eval mode), with the step and training seconds."""
         metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views,
                            render_dir=self.config.out / "renders" if save_renders else None)
-        return {**metrics, "steps": self.step, "train_seconds": self.train_seconds}
+        return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 
     # -------------------------------------------------------------- checkpoints
     def checkpoint_path(self) -> Path:

@@ -1,6 +1,6 @@
 """Crash safety: a training run killed with SIGKILL at a random moment leaves its last checkpoint
 loadable under the real name, and `--resume` continues from it. Checkpoints are written to a
-temporary file and renamed (REFERENCE.md section 5), so a half-written file never has the name."""
+temporary file and renamed (docs/robustness.md), so a half-written file never has the name."""
 
 import os
 import random

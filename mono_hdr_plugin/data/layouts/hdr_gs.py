@@ -1,4 +1,4 @@
-"""HDR-GS COLMAP layout (DATASETS.md section 3), read and written with pycolmap.
+"""HDR-GS COLMAP layout (docs/datasets.md), read and written with pycolmap.
 
     sparse/0/{cameras,images,points3D}.bin|.txt   COLMAP model, one image entry per view
     images/ (or input_images/)                    <view>_<e>.<ext>, e = 0..4 (t1..t5)

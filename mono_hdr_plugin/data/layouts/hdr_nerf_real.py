@@ -1,4 +1,4 @@
-"""HDR-NeRF real layout (DATASETS.md section 2), read and written.
+"""HDR-NeRF real layout (docs/datasets.md), read and written.
 
     poses_bounds_exps.npy   [N, 18]: LLFF [R | t | hwf] (3x5, axes down/right/back), near, far,
                             exposure seconds; rows follow the string-sorted input_images

@@ -1,4 +1,4 @@
-"""HDR-NeRF synthetic layout (DATASETS.md section 1), read and written.
+"""HDR-NeRF synthetic layout (docs/datasets.md), read and written.
 
     transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
                                    transform_matrix (OpenGL camera-to-world)
