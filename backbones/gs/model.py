@@ -2,10 +2,12 @@
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
+from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
 from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
@@ -229,6 +231,10 @@ class GaussianBackbone(Backbone):
             if name not in tensors:
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
+
+    def export_ply(self, path) -> Path:
+        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
+        return export_ply(self, path)
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree
