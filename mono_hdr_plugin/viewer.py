@@ -119,15 +119,26 @@ class SnapshotPublisher(TrainingHook):
         self.min_interval = min_interval
         self.interval = min_interval
         self.published_at = -math.inf
+        self.published_step = -1
 
     def after_step(self, trainer, record: dict) -> None:
-        now = time.perf_counter()
-        if now - self.published_at < self.interval or not self.watched():
+        if time.perf_counter() - self.published_at >= self.interval:
+            self._publish(trainer)
+
+    def on_end(self, trainer) -> None:
+        # The finished model is always shown, however the copies were spaced.
+        if self.published_step != trainer.step:
+            self._publish(trainer)
+
+    def _publish(self, trainer) -> None:
+        if not self.watched():
             return
+        now = time.perf_counter()
         self.snapshots.publish(trainer.backbone, trainer.method, trainer.step)
         copy_seconds = time.perf_counter() - now
         self.interval = max(self.min_interval, 20.0 * copy_seconds)
         self.published_at = time.perf_counter()
+        self.published_step = trainer.step
         self.on_publish(trainer.step)
 
 
