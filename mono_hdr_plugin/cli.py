@@ -29,22 +29,6 @@ class EvalConfig:
 
 
 @dataclass
-class RenderConfig:
-    """Render the test views of a checkpoint: HDR as EXR, LDR as PNG at chosen exposures."""
-
-    checkpoint: Path
-    """A checkpoint written by `mono-hdr train`."""
-    out: Path = Path("outputs/render")
-    """Folder for the images."""
-    exposures: tuple[float, ...] = ()
-    """Exposure times in seconds for LDR PNGs (default: the training exposures). Baselines use
-    their learned CRF; Mono-HDR's LDR branch exists at its training exposure only, so other
-    exposures are shown as the HDR render scaled by the exposure through the sRGB curve."""
-    max_views: int | None = None
-    """Render at most this many test views."""
-
-
-@dataclass
 class BackbonesConfig:
     """List every backbone with where it came from."""
 
@@ -79,6 +63,11 @@ def command_train(argv: list[str]) -> None:
                                                 description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
     trainer = build_trainer(config, backbone_name)
+    if config.viewer:
+        from mono_hdr_plugin.viewer import train_with_viewer  # noqa: PLC0415
+
+        train_with_viewer(trainer, lambda metrics: print_metrics(metrics, config.out / "metrics.json"))
+        return
     metrics = trainer.train()
     print_metrics(metrics, config.out / "metrics.json")
 
@@ -98,13 +87,6 @@ def command_eval(config: EvalConfig) -> None:
     metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
     write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
-
-
-def command_render(config: RenderConfig) -> None:
-    from mono_hdr_plugin.render import render_checkpoint  # noqa: PLC0415
-
-    written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
-    console.print(f"wrote {len(written)} images to {config.out}")
 
 
 def command_bench(argv: list[str]) -> None:
@@ -189,7 +171,6 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
     commands = {
         "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
         "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
-        "render": (RenderConfig.__doc__, simple(RenderConfig, command_render, "render")),
         "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
         "methods": (MethodsConfig.__doc__, simple(MethodsConfig, command_methods, "methods")),
         "layouts": (LayoutsConfig.__doc__, simple(LayoutsConfig, command_layouts, "layouts")),
@@ -201,8 +182,13 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 
 
 def _optional_commands() -> dict[str, tuple[type, Callable]]:
-    """Commands contributed by the studio and benchmark modules."""
-    found = {}
+    """Commands contributed by the studio, viewing and process-data modules."""
+    from mono_hdr_plugin.export import ExportConfig, export_command  # noqa: PLC0415
+    from mono_hdr_plugin.render import RenderConfig, render_command  # noqa: PLC0415
+    from mono_hdr_plugin.viewer import ViewConfig, view_command  # noqa: PLC0415
+
+    found = {"render": (RenderConfig, render_command), "view": (ViewConfig, view_command),
+             "export": (ExportConfig, export_command)}
     try:
         from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
         found["scenes"] = (ScenesConfig, list_scenes_command)

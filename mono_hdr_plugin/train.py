@@ -79,6 +79,12 @@ class TrainConfig:
     """Stop after this many consecutive steps with a non-finite loss or gradient."""
     quiet: bool = False
     """No progress bar (tests, benchmarks)."""
+    viewer: bool = False
+    """Watch training live in the browser (see `mono-hdr view --help`); it stays open after training."""
+    viewer_port: int = 7007
+    """Port of the --viewer (the next free one when taken)."""
+    viewer_host: str = "127.0.0.1"
+    """Address the --viewer listens on; anything but localhost opens it to the network."""
 
 
 class TrainingDiverged(RuntimeError):
@@ -281,15 +287,15 @@ class Trainer:
             for hook in hooks:
                 hook.on_end(self)
 
-    def train(self) -> dict[str, Any]:
-        """The command line's run: progress, periodic eval and checkpoints; then save, evaluate and
-        write OUT/metrics.json (and renders)."""
+    def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
+        """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
+        viewer's); then save, evaluate and write OUT/metrics.json (and renders)."""
         config = self.config
         hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
         if config.eval_every:
             hooks.append(EvaluateEvery(config.eval_every))
         hooks.append(CheckpointEvery(config.checkpoint_every))
-        self.fit(hooks)
+        self.fit([*hooks, *extra_hooks])
         self.save()
         metrics = self.evaluate(save_renders=config.save_renders)
         write_json(config.out / "metrics.json", metrics)
