@@ -344,6 +344,8 @@ class Trainer:
         try:
             metrics = self.evaluate(save_renders=config.save_renders)
             write_json(config.out / "metrics.json", metrics)
+        except KeyboardInterrupt:  # the trained model is saved: resuming only evaluates
+            raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
         except OSError as error:
             raise OutputError(f"{os_error_line(error)}. Training finished and its checkpoint {self.checkpoint_path()} "
                               "is saved: once fixed, score it with `mono-hdr eval --checkpoint "

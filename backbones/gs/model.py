@@ -69,7 +69,7 @@ class GaussianConfig:
         "init_opacity": between(0, 1, low_open=True, high_open=True), "lr_means": POSITIVE, "lr_means_final": POSITIVE,
         "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE, "lr_scales": POSITIVE,
         "lr_quats": POSITIVE, "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
-        "min_refine_every": at_least(1), "reset_opacity_every": at_least(1), "grad_threshold": POSITIVE,
+        "min_refine_every": at_least(1), "reset_opacity_every": at_least(1), "grad_threshold": NON_NEGATIVE,
         "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True), "max_screen_size": POSITIVE,
         "max_gaussians": at_least(1)}
 
