@@ -10,14 +10,14 @@ import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable
 
 import tyro
 from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from mono_hdr_plugin.validation import POSITIVE, at_least, check_flags
+from mono_hdr_plugin.validation import check_flags
 
 console = Console()
 errors = Console(stderr=True, soft_wrap=True)
@@ -40,26 +40,6 @@ class EvalConfig:
     """Write EXR and PNG renders of the test views."""
     overwrite: bool = False
     """Replace an earlier evaluation's metrics.json and renders/ in --out instead of refusing."""
-
-
-@dataclass
-class RenderConfig:
-    """Render the test views of a checkpoint: HDR as EXR, LDR as PNG at chosen exposures."""
-
-    checkpoint: Path
-    """A checkpoint written by `mono-hdr train`."""
-    out: Path = Path("outputs/render")
-    """Folder for the images."""
-    exposures: tuple[float, ...] = ()
-    """Exposure times in seconds for LDR PNGs (default: the training exposures). Baselines use
-    their learned CRF; Mono-HDR's LDR branch exists at its training exposure only, so other
-    exposures are shown as the HDR render scaled by the exposure through the sRGB curve."""
-    max_views: int | None = None
-    """Render at most this many test views."""
-    overwrite: bool = False
-    """Replace an earlier render in --out instead of refusing."""
-
-    flag_rules: ClassVar = {"exposures": POSITIVE, "max_views": at_least(1)}
 
 
 @dataclass
@@ -96,6 +76,14 @@ def command_train(argv: list[str]) -> None:
     config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
                                                 description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
+    if config.viewer:
+        from mono_hdr_plugin.viewer import train_with_viewer  # noqa: PLC0415
+
+        def report(metrics: dict) -> None:
+            print_metrics(metrics, config.out / "metrics.json")
+
+        run_training(config, backbone_name, lambda trainer: train_with_viewer(trainer, report))
+        return
     metrics = run_training(config, backbone_name)
     print_metrics(metrics, config.out / "metrics.json")
 
@@ -122,17 +110,14 @@ def command_eval(config: EvalConfig) -> None:
     print_metrics(metrics, config.out / "metrics.json")
 
 
-def command_render(config: RenderConfig) -> None:
-    from mono_hdr_plugin.checkpoints import load_checkpoint  # noqa: PLC0415
+def command_render(config: Any) -> None:
+    """`mono-hdr render` in a folder it claims: one writer at a time, never a folder another command or a
+    person wrote; renders add to an earlier render's folder (files of the same name are replaced)."""
     from mono_hdr_plugin.outputs import claim_output  # noqa: PLC0415
-    from mono_hdr_plugin.render import render_checkpoint  # noqa: PLC0415
+    from mono_hdr_plugin.render import render_command  # noqa: PLC0415
 
-    with claim_output(config.out, "render", None, inputs=[config.checkpoint], overwrite=config.overwrite) as output:
-        if not Path(config.checkpoint).is_file():
-            load_checkpoint(config.checkpoint)  # its error, before an earlier render is removed
-        output.clear_previous()
-        written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
-    console.print(Text(f"wrote {len(written)} images to {config.out}"), soft_wrap=True)
+    with claim_output(config.out, "render", None, inputs=[config.checkpoint], keep=True):
+        render_command(config)
 
 
 def command_bench(argv: list[str]) -> None:
@@ -223,7 +208,6 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
     commands = {
         "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
         "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
-        "render": (RenderConfig.__doc__, simple(RenderConfig, command_render, "render")),
         "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
         "methods": (MethodsConfig.__doc__, simple(MethodsConfig, command_methods, "methods")),
         "layouts": (LayoutsConfig.__doc__, simple(LayoutsConfig, command_layouts, "layouts")),
@@ -235,8 +219,13 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 
 
 def _optional_commands() -> dict[str, tuple[type, Callable]]:
-    """Commands contributed by the studio and benchmark modules."""
-    found = {}
+    """Commands contributed by the studio, viewing and process-data modules."""
+    from mono_hdr_plugin.export import ExportConfig, export_command  # noqa: PLC0415
+    from mono_hdr_plugin.render import RenderConfig  # noqa: PLC0415
+    from mono_hdr_plugin.viewer import ViewConfig, view_command  # noqa: PLC0415
+
+    found = {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
+             "export": (ExportConfig, export_command)}
     try:
         from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
         found["scenes"] = (ScenesConfig, list_scenes_command)

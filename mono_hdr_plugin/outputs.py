@@ -114,26 +114,30 @@ def check_replaceable(folder: Path, marker: Path, inputs: Iterable[Path | None],
 
 def plan_output(folder: Path, command: str, owned: tuple[str, ...] | None, inputs: Iterable[Path | None],
                 overwrite: bool, keep: bool, previous: dict | None, keep_hint: str = "") -> list[Path]:
-    """What has to go before `command` writes `folder`: nothing when no earlier output is in the way
-    or `keep` (resume) says to continue it. Refuses when an earlier output is in the way without
-    --overwrite, or when --overwrite would remove something mono-hdr did not write, that holds an
-    input, or (whole-folder outputs) the output of another command."""
+    """What has to go before `command` writes `folder` (nothing when no earlier output is in the way).
+
+    keep: continue the earlier output in place: train --resume (its checkpoint is checked when it is
+    loaded), or a command whose outputs add up (render). Refused: a folder mono-hdr did not write;
+    for whole-folder outputs, another command's folder; an earlier output without --overwrite; an
+    --overwrite that would remove something outside the folder or holding an input."""
     folder = Path(folder)
     existing = _existing_outputs(folder, owned) if folder.is_dir() else []
-    if not existing or keep:
+    if not existing or (keep and owned is not None):
         return []
     listing = ", ".join(_entry_name(p) for p in existing[:5]) + (" ..." if len(existing) > 5 else "")
-    inputs = list(inputs)
     if previous is None:
         raise OutputError(f"--out {folder} holds {listing}, which mono-hdr did not write (no {RUN_FILE}); nothing "
                           "is replaced there, even with --overwrite: choose another --out")
+    earlier = previous.get("command", "?")
+    if owned is None and earlier != command:
+        raise OutputError(f"--out {folder} holds the output of `mono-hdr {earlier}`; `mono-hdr {command}` writes "
+                          "into a folder of its own: choose another --out")
+    if keep:
+        return []
     if not overwrite:
-        raise OutputError(f"--out {folder} holds the output of an earlier `mono-hdr {previous.get('command', '?')}` "
-                          f"({listing}); {keep_hint}pass --overwrite to replace it, or choose another --out")
-    if owned is None and previous.get("command") != command:
-        raise OutputError(f"--out {folder} holds the output of `mono-hdr {previous.get('command', '?')}`, and "
-                          f"--overwrite replaces only an earlier `mono-hdr {command}`'s; choose another --out")
-    root = folder.resolve()
+        raise OutputError(f"--out {folder} holds the output of an earlier `mono-hdr {earlier}` ({listing}); "
+                          f"{keep_hint}pass --overwrite to replace it, or choose another --out")
+    root, inputs = folder.resolve(), list(inputs)
     for path in existing:
         location = path.parent.resolve() / path.name
         if not location.is_relative_to(root) or location == root:

@@ -19,7 +19,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, NamedTuple
+from typing import Annotated, Any, Callable, ClassVar, NamedTuple
 
 import torch
 import tyro
@@ -42,7 +42,8 @@ from mono_hdr_plugin.metrics import psnr
 from mono_hdr_plugin.outputs import OutputError, claim_output
 from mono_hdr_plugin.pipeline import Pipeline
 from mono_hdr_plugin.registry import get_backbone
-from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, check_flags, iter_flags
+from mono_hdr_plugin.validation import (NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags,
+                                        iter_flags)
 
 console = Console(stderr=True)
 # Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
@@ -50,7 +51,7 @@ console = Console(stderr=True)
 RUN_LENGTH_WARMUP = 5
 RUN_LENGTH_EVERY = 25
 RUN_LENGTH_WINDOW = 50
-TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json")
+TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer")
 """What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
 
 
@@ -92,10 +93,17 @@ class TrainConfig:
     """Stop after this many consecutive steps with a non-finite loss or gradient."""
     quiet: bool = False
     """No progress bar (tests, benchmarks)."""
+    viewer: bool = False
+    """Watch training live in the browser (see `mono-hdr view --help`); it stays open after training."""
+    viewer_port: int = 7007
+    """Port of the --viewer (the next free one when taken)."""
+    viewer_host: str = "127.0.0.1"
+    """Address the --viewer listens on; anything but localhost opens it to the network."""
 
     flag_rules: ClassVar = {"max_steps": NON_NEGATIVE, "max_seconds": POSITIVE, "seed": SEED,
                             "eval_every": NON_NEGATIVE, "checkpoint_every": at_least(1),
-                            "max_eval_views": at_least(1), "nan_patience": at_least(1)}
+                            "max_eval_views": at_least(1), "nan_patience": at_least(1),
+                            "viewer_port": between(0, 65535)}
 
 
 class TrainingDiverged(RuntimeError):
@@ -117,7 +125,7 @@ class ResumeMismatch(ValueError):
 # Flags of a run that may change when it is resumed (the schedule, the output, logging).
 RESUME_FREE_FLAGS = {"--max-steps", "--max-seconds", "--out", "--resume", "--overwrite", "--eval-every",
                      "--checkpoint-every", "--max-eval-views", "--save-renders", "--nan-patience", "--quiet",
-                     "--seed", "--preset"}
+                     "--seed", "--preset", "--viewer", "--viewer-port", "--viewer-host"}
 # Flags that make a resumed run a different experiment; the data flags count through the data itself.
 RESUME_IDENTITY_FLAGS = {"--method", "--hidden"}
 DATA_FLAGS = {"--data", "--scene", "--layout", "--protocol", "--exposure-index", "--fixed-exposure", "--downscale",
@@ -323,17 +331,18 @@ class Trainer:
             for hook in hooks:
                 hook.on_end(self)
 
-    def train(self) -> dict[str, Any]:
-        """The command line's run: progress, periodic eval and checkpoints; then save, evaluate and
-        write OUT/metrics.json (and renders). Ctrl-C stops after the step in progress, saves a
-        checkpoint and raises TrainingInterrupted."""
+    def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
+        """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
+        viewer's); then save, evaluate and write OUT/metrics.json (and renders). Ctrl-C stops after
+        the step in progress, saves a checkpoint and raises TrainingInterrupted."""
         config = self.config
         hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
         if config.eval_every:
             hooks.append(EvaluateEvery(config.eval_every))
         hooks.append(CheckpointEvery(config.checkpoint_every))
         with interrupt_requests() as interrupt:
-            hooks.append(StopWhenInterrupted(interrupt))  # last: the step's evaluation and checkpoint come first
+            # last: the step's evaluation and checkpoint come first
+            hooks = [*hooks, *extra_hooks, StopWhenInterrupted(interrupt)]
             try:
                 self.fit(hooks)
             except TrainingInterrupted:
@@ -561,15 +570,17 @@ def interrupt_requests():
         signal.signal(signal.SIGINT, previous)
 
 
-def run_training(config: TrainConfig, backbone_name: str) -> dict[str, Any]:
+def run_training(config: TrainConfig, backbone_name: str,
+                 train: Callable[[Trainer], dict[str, Any]] = Trainer.train) -> dict[str, Any]:
     """`mono-hdr train`: claim --out (refused while another run writes it, or when it holds an earlier
-    run and neither --resume nor --overwrite says what to do), load the data, train and score."""
+    run and neither --resume nor --overwrite says what to do), load the data, then `train` (the
+    viewer's training, or plain) and score."""
     check_train_config(config)
     with claim_output(config.out, "train", TRAIN_OUTPUTS, inputs=[config.data.data], overwrite=config.overwrite,
                       keep=config.resume, keep_hint="pass --resume to continue it, ") as claim:
         trainer = build_trainer(config, backbone_name)
         claim.clear_previous()
-        return trainer.train()
+        return train(trainer)
 
 
 def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:

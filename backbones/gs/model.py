@@ -2,11 +2,13 @@
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
+from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
 from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
@@ -125,7 +127,7 @@ class GaussianBackbone(Backbone):
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
         if scene.points is not None and len(scene.points) > 0:
-            points = scene.points.detach().float().reshape(-1, 3)
+            points = scene.points.detach().float().reshape(-1, 3).clone()  # training moves the means in place
             if scene.point_colors is None:
                 return points, torch.full_like(points, 0.5)
             colors = scene.point_colors.detach().reshape(-1, 3)
@@ -170,6 +172,9 @@ class GaussianBackbone(Backbone):
     @property
     def num_gaussians(self) -> int:
         return self.means.shape[0]
+
+    def statistics(self) -> dict[str, float]:
+        return {"gaussians": self.num_gaussians}
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
@@ -237,6 +242,10 @@ class GaussianBackbone(Backbone):
             if name not in tensors:
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
+
+    def export_ply(self, path) -> Path:
+        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
+        return export_ply(self, path)
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree

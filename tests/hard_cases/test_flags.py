@@ -11,11 +11,14 @@ import typing
 import pytest
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-from mono_hdr_plugin.cli import EvalConfig, RenderConfig, main
+from mono_hdr_plugin.cli import EvalConfig, main
+from mono_hdr_plugin.export import ExportConfig
 from mono_hdr_plugin.registry import BACKBONES
+from mono_hdr_plugin.render import RenderConfig
 from mono_hdr_plugin.studio.commands import SynthConfig
 from mono_hdr_plugin.train import check_train_config, train_config_for
 from mono_hdr_plugin.validation import FlagError, check_flags, rules_of
+from mono_hdr_plugin.viewer import ViewConfig
 
 BUILT_IN = ("gs", "nerf", "voxel-grid")
 
@@ -23,7 +26,8 @@ BUILT_IN = ("gs", "nerf", "voxel-grid")
 def default_configs() -> dict[str, object]:
     configs = {name: train_config_for(BACKBONES.get(name).config_class)(backbone=BACKBONES.get(name).config_class())
                for name in BUILT_IN}
-    configs.update(eval=EvalConfig(checkpoint="x.pt"), render=RenderConfig(checkpoint="x.pt"), synth=SynthConfig())
+    configs.update(eval=EvalConfig(checkpoint="x.pt"), render=RenderConfig(checkpoint="x.pt"), synth=SynthConfig(),
+                   view=ViewConfig(checkpoint="x.pt"), export=ExportConfig(checkpoint="x.pt"))
     return configs
 
 

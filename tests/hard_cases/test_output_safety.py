@@ -261,19 +261,18 @@ def test_eval_into_the_training_folder_keeps_its_checkpoint(run):
     assert json.loads((run / "metrics.json").read_text())["steps"] == 2
 
 
-def test_render_replaces_only_an_earlier_render(run, tmp_path):
+def test_render_adds_to_its_own_folder_and_never_writes_into_another(run, tmp_path):
     checkpoint = run / "checkpoints" / "latest.pt"
     out = tmp_path / "render"
     main(["render", "--checkpoint", str(checkpoint), "--out", str(out), "--max-views", "1"])
     rendered = sorted(p.name for p in out.iterdir() if p.name != RUN_FILE)
     assert rendered and all(name.endswith((".exr", ".png")) for name in rendered)
-    with pytest.raises(OutputError, match="earlier `mono-hdr render`.*pass --overwrite"):
-        main(["render", "--checkpoint", str(checkpoint), "--out", str(out)])
-    main(["render", "--checkpoint", str(checkpoint), "--out", str(out), "--max-views", "1", "--overwrite"])
-    # the training folder is another command's output: even --overwrite leaves it alone
+    main(["render", "--checkpoint", str(checkpoint), "--out", str(out), "--max-views", "1", "--exposures", "8"])
+    assert set(rendered) < {p.name for p in out.iterdir()}  # renders add up in their folder
     before = snapshot(run)
-    with pytest.raises(OutputError, match="holds the output of `mono-hdr train`.*only an earlier `mono-hdr render`"):
-        main(["render", "--checkpoint", str(checkpoint), "--out", str(run), "--overwrite"])
+    with pytest.raises(OutputError, match="holds the output of `mono-hdr train`; `mono-hdr render` writes into a "
+                                          "folder of its own"):
+        main(["render", "--checkpoint", str(checkpoint), "--out", str(run)])
     assert snapshot(run) == before
 
 
