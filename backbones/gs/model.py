@@ -3,6 +3,7 @@
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -13,6 +14,7 @@ from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
 from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 
 @dataclass
@@ -63,6 +65,15 @@ class GaussianConfig:
     """Stop growing beyond this many Gaussians (a CPU memory and time budget)."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
+
+    flag_rules: ClassVar = {
+        "sh_degree": between(0, 3), "sh_increase_every": at_least(1), "random_init_points": at_least(1),
+        "init_opacity": between(0, 1, low_open=True, high_open=True), "lr_means": POSITIVE, "lr_means_final": POSITIVE,
+        "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE, "lr_scales": POSITIVE,
+        "lr_quats": POSITIVE, "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
+        "min_refine_every": at_least(1), "reset_opacity_every": at_least(1), "grad_threshold": NON_NEGATIVE,
+        "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True), "max_screen_size": POSITIVE,
+        "max_gaussians": at_least(1)}
 
 
 class _RenderExtras(dict):
