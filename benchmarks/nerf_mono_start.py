@@ -18,8 +18,8 @@ from pathlib import Path
 import torch
 
 from backbones.nerf import NerfBackbone
-from mono_hdr_plugin.bench import SceneCache, run_facts
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.bench.runs import cached_scene, run_facts
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.methods import MethodConfig
 from mono_hdr_plugin.train import Trainer, train_config_for
@@ -38,7 +38,7 @@ VARIANTS = {  # name -> (method, MethodConfig overrides)
 
 def run(variant: str, scene_name: str, steps: int, every: int, eval_views: int, out: Path, seed: int) -> dict:
     method, overrides = VARIANTS[variant]
-    scene = SceneCache().get(scene_name, 1)
+    scene = cached_scene(scene_name, 1)
     config = train_config_for(type(NerfBackbone.presets()["cpu"]))(
         backbone=NerfBackbone.presets()["cpu"], max_steps=steps, out=out / "run", quiet=True, save_renders=False,
         checkpoint_every=10**9, max_eval_views=eval_views, seed=seed, data=DataConfig(scene=scene_name),

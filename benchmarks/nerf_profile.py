@@ -22,13 +22,14 @@ import argparse
 import functools
 import json
 import statistics
+import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.bench import RunSpec, SceneCache, build_run
+from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene
 
 PHASES = ("sampling", "field", "l2h/crf", "composite", "backward", "optimiser", "density grid", "other")
 
@@ -94,8 +95,8 @@ def profile(scene: str, method: str, preset: str | None, warmup: int, steps: int
             rays: int | None) -> dict:
     torch.set_num_threads(threads)
     spec = RunSpec(backbone="nerf", method=method, preset=preset, scene=scene)
-    trainer = build_run(spec, SceneCache().get(scene, spec.exposure_index), warmup + steps,
-                        Path("/tmp/nerf_profile"), max_eval_views=1)
+    trainer = build_run(spec, cached_scene(scene, spec.exposure_index), Path(tempfile.mkdtemp(prefix="nerf_profile_")),
+                        RunBudget(steps=warmup + steps, max_eval_views=1))
     if rays is not None:
         trainer.backbone.pixel_batch = rays
     for _ in range(warmup):

@@ -13,6 +13,9 @@ from torch import Tensor
 
 from mono_hdr_plugin.cameras import Camera
 
+# Learning rate of the HDR converters in both official codes (hard-coded there).
+OFFICIAL_CONVERTER_LR = 5e-4
+
 
 @dataclass
 class LdrFeatures:
@@ -73,6 +76,8 @@ class Backbone(torch.nn.Module):
             official codes' 5e-4; a backbone whose own networks learn much faster raises it, so
             the converters keep pace with the colours they convert (the official NeRF trains both
             at one rate).
+        paper_backbone: which of the paper's backbones this one reproduces, "NeRF" or "3DGS";
+            `mono-hdr bench` compares it with the paper's figures of that row (None: no row).
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
@@ -83,9 +88,10 @@ class Backbone(torch.nn.Module):
 
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
+    paper_backbone: ClassVar[str | None] = None
     pixel_batch: ClassVar[int | None] = None
     render_chunk: ClassVar[int | None] = None
-    converter_lr: float = 5e-4
+    converter_lr: float = OFFICIAL_CONVERTER_LR
 
     def __init__(self, config: Any, scene: SceneInfo):
         super().__init__()
@@ -93,9 +99,24 @@ class Backbone(torch.nn.Module):
         self.max_steps = 30_000
 
     @classmethod
+    def benchmarks(cls) -> dict[str, tuple[type, Callable[[Any], Any]]]:
+        """Benchmarks this backbone adds to `mono-hdr bench`: name -> (config dataclass, function)."""
+        return {}
+
+    @classmethod
+    def tuning_space(cls) -> dict[str, tuple]:
+        """What `mono-hdr bench paper`'s recipe table tunes for every method alike: a field path of
+        this backbone's config -> candidate values (each method gets the same grid)."""
+        return {}
+
+    @classmethod
     def presets(cls) -> dict[str, Any]:
         """Named configurations of this backbone (`--preset NAME`); the first one is the default."""
         return {"default": cls.config_class()}
+
+    def statistics(self) -> dict[str, float]:
+        """Numbers the benchmarks report next to quality (3DGS: the Gaussian count)."""
+        return {}
 
     def set_run_length(self, max_steps: int) -> None:
         """Told by the trainer before step 0, so schedules (densification) scale to the run.

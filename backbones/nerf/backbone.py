@@ -28,6 +28,7 @@ class NerfBackbone(Backbone):
 
     config_class = NerfConfig
     loss_kind = "mse"
+    paper_backbone = "NeRF"
     pixel_batch = 1024
 
     def __init__(self, config: NerfConfig, scene: SceneInfo):
@@ -81,6 +82,12 @@ class NerfBackbone(Backbone):
     def presets(cls) -> dict[str, NerfConfig]:
         """cpu: grid field with occupancy-grid marching (the default); paper: the official MLP recipe."""
         return {"cpu": NerfConfig(field=GridFieldConfig()), "paper": NerfConfig(field=MlpFieldConfig())}
+
+    @classmethod
+    def tuning_space(cls) -> dict[str, tuple]:
+        """The cpu recipe's two learning rates (grid features, tiny MLPs), around their defaults.
+        They are fields of the cpu preset's GridFieldConfig: the paper preset has neither."""
+        return {"field.grid_lr": (1e-2, 3e-2), "field.mlp_lr": (3e-3, 1e-2)}
 
     @property
     def uses_grid(self) -> bool:

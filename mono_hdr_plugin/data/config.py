@@ -2,7 +2,9 @@
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
+
+from mono_hdr_plugin.validation import POSITIVE, SEED, between
 
 
 @dataclass
@@ -13,8 +15,9 @@ class DataConfig:
     """A dataset folder on disk (HDR-NeRF synthetic/real or HDR-GS layout, detected)."""
     scene: str | None = None
     """A built-in studio scene (see `mono-hdr scenes`); used when --data is not given."""
-    layout: Literal["auto", "hdr-nerf-synthetic", "hdr-nerf-real", "hdr-gs"] = "auto"
-    """On-disk layout of --data; auto detects it from the files present."""
+    layout: str = "auto"
+    """On-disk layout of --data: auto detects it from the files present; or a registered layout
+    (`mono-hdr layouts`: hdr-gs, hdr-nerf-synthetic, hdr-nerf-real, or a plugin's)."""
     protocol: Literal["single", "multi", "fixed"] = "single"
     """single: the paper's setting, every view at exposure t1/t3/t5 chosen by --exposure-index
     (train and LDR test); multi: HDR-NeRF/HDR-GS, each train view one random exposure of
@@ -27,3 +30,6 @@ class DataConfig:
     """Integer factor to shrink images by (area averaging), 2 reproduces the paper's half_res."""
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
+
+    flag_rules: ClassVar = {"exposure_index": between(0, 2), "fixed_exposure": POSITIVE, "downscale": POSITIVE,
+                            "exposure_seed": SEED}

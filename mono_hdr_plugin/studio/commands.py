@@ -2,14 +2,12 @@
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar
 
 from mono_hdr_plugin.studio.render import dynamic_range, render_scene
 from mono_hdr_plugin.studio.scene import StudioScene
 from mono_hdr_plugin.studio.scenes import SCENES
-
-LAYOUT_NAMES = {"hdr-nerf": "hdr-nerf-synthetic", "hdr-gs": "hdr-gs"}
-
+from mono_hdr_plugin.validation import SEED
 
 @dataclass
 class SynthConfig:
@@ -19,11 +17,15 @@ class SynthConfig:
     """Built-in scene to write (see `mono-hdr scenes`)."""
     out: Path = Path("outputs/synth")
     """Folder to write the dataset into (created if missing)."""
-    layout: Literal["hdr-nerf", "hdr-gs"] = "hdr-gs"
-    """hdr-nerf: transforms/exposure JSON + PNGs + EXR (HDR-NeRF synthetic); hdr-gs: images/, exr/,
-    COLMAP sparse/0 and exposures.json."""
+    layout: str = "hdr-gs"
+    """A writable layout (`mono-hdr layouts`): hdr-gs (images/, exr/, COLMAP sparse/0, exposures.json),
+    hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
     seed: int = 0
     """Seed of the simulated sensor noise."""
+    overwrite: bool = False
+    """Replace a dataset an earlier `mono-hdr synth` wrote in --out instead of refusing."""
+
+    flag_rules: ClassVar = {"seed": SEED}
 
 
 @dataclass
@@ -42,11 +44,15 @@ def png_bits(scene: StudioScene) -> int:
 def synth(config: SynthConfig) -> Path:
     """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
     from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.outputs import claim_output
     from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
 
-    scene = get_scene(config.scene)
-    write_layout(studio_captured_scene(scene, seed=config.seed), config.out, LAYOUT_NAMES[config.layout],
-                 bits=png_bits(scene))
+    # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
+    with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
+        scene = get_scene(config.scene)
+        captured = studio_captured_scene(scene, seed=config.seed)
+        output.clear_previous()
+        write_layout(captured, config.out, config.layout, bits=png_bits(scene))
     return config.out
 
 

@@ -385,20 +385,19 @@ class TestOccupancySkipping:
 
 class TestRenderMemoryBound:
     def test_every_field_call_of_a_full_render_is_bounded_by_the_chunk(self, scene):
-        """Memory per piece is bounded by construction: render_full hands the backbone at most
+        """Memory per piece is bounded by construction: Pipeline.render hands the backbone at most
         render_chunk rays, and the field sees at most render_chunk x max_samples_per_ray samples."""
-        from mono_hdr_plugin.methods import MethodConfig, build_method
-        from mono_hdr_plugin.train import render_full
+        from mono_hdr_plugin.methods import MethodConfig
+        from mono_hdr_plugin.pipeline import Pipeline
 
-        backbone = NerfBackbone(tiny_config("cpu", render_chunk=50), scene).eval()
+        pipeline = Pipeline.create("nerf", tiny_config("cpu", render_chunk=50), MethodConfig(), scene).eval()
+        backbone = pipeline.backbone
         rays, samples = [], []
         render = backbone.render_ldr_features
         backbone.render_ldr_features = lambda camera: rays.append(camera.pixels.shape[0]) or render(camera)
         backbone.grid_field.density_mlp.register_forward_hook(
             lambda module, inputs, output: samples.append(inputs[0].shape[0]))
-        camera = orbit_camera(size=30)
-        with torch.no_grad():
-            output = render_full(backbone, build_method(MethodConfig(), "mse"), camera, 1.0)
+        output = pipeline.render(orbit_camera(size=30), 1.0)
         assert output.ldr.shape == (30, 30, 3)
         assert sum(rays) == 900 and max(rays) <= 50
         assert len(samples) == len(rays) and max(samples) <= 50 * backbone.config.field.max_samples_per_ray

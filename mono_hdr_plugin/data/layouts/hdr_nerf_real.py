@@ -1,4 +1,4 @@
-"""HDR-NeRF real layout (DATASETS.md section 2), read and written.
+"""HDR-NeRF real layout (docs/datasets.md), read and written.
 
     poses_bounds_exps.npy   [N, 18]: LLFF [R | t | hwf] (3x5, axes down/right/back), near, far,
                             exposure seconds; rows follow the string-sorted input_images
@@ -17,6 +17,7 @@ import torch
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import atomic_path, read_image, write_png
+from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.common import (IMAGE_SUFFIXES, camera_from, check_exposure, check_finite,
                                                  check_one_size, image_size, natural_key,
                                                  split_view_exposure)
@@ -48,7 +49,7 @@ def _load_rows(folder: Path, names: list[str]) -> np.ndarray:
     path = folder / POSES_FILE
     try:
         rows = np.load(path)
-    except (ValueError, OSError) as error:
+    except (ValueError, OSError, EOFError) as error:
         raise DatasetError(f"{path}: cannot read the array ({error}); regenerate it") from error
     if rows.ndim != 2 or rows.shape[1] != COLUMNS:
         raise DatasetError(f"{path}: shape {rows.shape}, expected (images, {COLUMNS}) "
@@ -80,6 +81,10 @@ def read(folder: Path) -> CapturedScene:
     for view_id, token in enumerate(sorted(groups, key=natural_key)):
         (first_name, first_row), *_ = groups[token]
         pose = first_row[:15].reshape(3, 5)
+        if not (pose[:, 4] > 0).all():
+            raise DatasetError(f"{folder / POSES_FILE} row of {first_name}: image height, width and focal length "
+                               f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
+                               "regenerate the file")
         focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
         camera = camera_from(f"{folder / POSES_FILE} row of {first_name}",
                              c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(), fx=focal, fy=focal,
@@ -110,3 +115,12 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
     rows = np.array([row for _, row in sorted(entries)])
     with atomic_path(folder / POSES_FILE) as temporary, open(temporary, "wb") as handle:
         np.save(handle, rows)
+
+
+@register_layout("hdr-nerf-real")
+class HdrNerfRealLayout(DatasetLayout):
+    description = "poses_bounds_exps.npy + input_images/ (HDR-NeRF real, LLFF)"
+    writable = True
+    detect = staticmethod(detect)
+    read = staticmethod(read)
+    write = staticmethod(write)
