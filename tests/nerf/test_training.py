@@ -58,7 +58,7 @@ class TestCheckpoint:
 
 
 @pytest.mark.slow
-class TestFastFieldLearnsTheDemoScene:
+class TestCpuFieldLearnsTheDemoScene:
     def test_hdr_psnr_rises(self, tmp_path):
         scene = load_scene(DataConfig(scene="demo"))
         config = train_config_for(NerfConfig)(backbone=NerfBackbone.presets()["cpu"], out=tmp_path / "run", quiet=True,
