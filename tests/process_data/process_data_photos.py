@@ -11,15 +11,12 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image
-from PIL.TiffImagePlugin import IFDRational
 
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.studio.capture import capture
 from mono_hdr_plugin.studio.render import render_scene
 from mono_hdr_plugin.studio.scene import CameraRig, StudioScene, box, diffuse, panel, place, rgb, rotate, scale, translate
-
-EXIF_IFD, TAG_MAKE, TAG_MODEL, TAG_ORIENTATION = 0x8769, 0x010F, 0x0110, 0x0112
-TAG_EXPOSURE_TIME, TAG_F_NUMBER, TAG_ISO, TAG_FOCAL_35MM = 0x829A, 0x829D, 0x8827, 0xA405
+from mono_hdr_plugin.studio.shoot import save_jpeg
 
 
 def noise_texture(path: Path, size: int = 512, seed: int = 0) -> Path:
@@ -64,28 +61,6 @@ class PhotoShoot:
     cameras: list[Camera]
     exposures: list[float]
     names: list[str]
-
-
-def exif_bytes(exposure: Fraction | None = None, iso: int | None = None, f_number: Fraction | None = None,
-               focal_35mm: int | None = None, model: str | None = "StudioCam", orientation: int | None = None):
-    exif = Image.Exif()
-    if model:
-        exif[TAG_MAKE], exif[TAG_MODEL] = "Mono-HDR", model
-    if orientation:
-        exif[TAG_ORIENTATION] = orientation
-    details = exif.get_ifd(EXIF_IFD)
-    for tag, value in ((TAG_EXPOSURE_TIME, exposure), (TAG_F_NUMBER, f_number), (TAG_ISO, iso),
-                       (TAG_FOCAL_35MM, focal_35mm)):
-        if value is not None:  # Pillow writes rationals from IFDRational, not Fraction
-            details[tag] = IFDRational(value.numerator, value.denominator) if isinstance(value, Fraction) else value
-    return exif
-
-
-def save_jpeg(path: Path, pixels: np.ndarray, **exif) -> Path:
-    """float [H, W, 3] in [0, 1] -> a quality-95 JPEG carrying the given EXIF fields."""
-    Image.fromarray((np.clip(pixels, 0, 1) * 255).round().astype(np.uint8)).save(
-        path, quality=95, exif=exif_bytes(**exif))
-    return path
 
 
 def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoShoot:
