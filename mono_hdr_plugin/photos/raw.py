@@ -1,8 +1,10 @@
 """RAW photos through rawpy (LibRaw): linear demosaiced pixels and the exposure in their metadata.
 
 LibRaw subtracts the black level, scales the white level to 1, applies the camera's as-shot
-white balance, demosaics (AHD) and converts to linear sRGB primaries; with gamma (1, 1) and no
-automatic brightening the values stay proportional to the light the sensor collected, which is
+white balance, demosaics (AHD) and converts to linear sRGB primaries. With gamma (1, 1), no
+automatic brightening and no "maximum adjustment" (by default LibRaw takes a bright photo's own
+maximum as its white level, which scales each photo differently) the values stay proportional
+to the light the sensor collected, the same scale in every photo, which is
 what a bracket merge and an exposure model need. An LDR view of a RAW photo is that linear
 image through a chosen response curve (`encode`), clipped at white.
 """
@@ -34,7 +36,7 @@ def read_raw(path: Path) -> tuple[np.ndarray, PhotoExif]:
     try:
         with rawpy.imread(str(path)) as raw:
             pixels = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16, use_camera_wb=True,
-                                     output_color=rawpy.ColorSpace.sRGB)
+                                     output_color=rawpy.ColorSpace.sRGB, adjust_maximum_thr=0.0)
             other = raw.other
     except (rawpy.LibRawError, rawpy.NotSupportedError, OSError, ValueError) as error:
         raise DatasetError(f"{path}: LibRaw cannot read this RAW file ({type(error).__name__}: {error}); export it "

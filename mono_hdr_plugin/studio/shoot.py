@@ -74,6 +74,8 @@ class ShotTruth:
     """Index of the bracket set, None for a single photo."""
     stops: float = 0.0
     """Offset from the metered exposure (0 for single photos and the bracket's metered shot)."""
+    seed: int = 0
+    """Seed of this photo's sensor noise (studio.capture.capture)."""
 
 
 @dataclass
@@ -136,15 +138,14 @@ def shoot(scene: StudioScene, folder: Path, config: ShootConfig = ShootConfig(),
         steps = config.bracket_stops if bracketed else (0.0,)
         for step in steps:
             exposure = third_stop(metered * 2**step)
-            name = f"IMG_{len(shots) + 1:04d}.jpg"
-            pixels = capture(radiance, float(exposure), effects, scene.capture,
-                             seed=config.seed * 100_003 + len(shots))
+            name, seed = f"IMG_{len(shots) + 1:04d}.jpg", config.seed * 100_003 + len(shots)
+            pixels = capture(radiance, float(exposure), effects, scene.capture, seed=seed)
             fields = {"exposure": exposure, "iso": config.iso, "f_number": Fraction(config.f_number).limit_denominator(100),
                       "exposure_mode": EXPOSURE_MODE_AUTO_BRACKET if bracketed else EXPOSURE_MODE_AUTO}
             save_jpeg(folder / name, pixels, config.quality, focal_35mm=focal_35mm, timestamp=clock,
                       **(fields if config.exposure_exif else {}))
             shots.append(ShotTruth(file=name, view=view, exposure=float(exposure),
-                                   bracket=brackets if bracketed else None, stops=step))
+                                   bracket=brackets if bracketed else None, stops=step, seed=seed))
             clock += config.seconds_between_bracket_shots + float(exposure)
         brackets += bracketed
         clock += config.seconds_between_views
