@@ -7,7 +7,7 @@ then print and plot how HDR quality grew with training time for each.
 import argparse
 from pathlib import Path
 
-from mono_hdr_plugin.bench import RunSpec, SceneCache, build_run, estimate_steps, render_fps, train_for
+from mono_hdr_plugin.bench import RunSpec, SceneCache, build_run, render_fps, train_for
 
 
 def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ...] = ("nerf", "gs"),
@@ -16,9 +16,9 @@ def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ..
     scenes, results = SceneCache(), []
     for backbone in backbones:
         spec = RunSpec(backbone=backbone, method=method, preset="fast" if backbone == "nerf" else None, scene=scene_name)
-        trainer = build_run(spec, scenes.get(scene_name, spec.exposure_index), 10**9, out / backbone, max_eval_views)
-        trainer.backbone.set_run_length(estimate_steps(trainer, seconds))
-        curve = train_for(trainer, seconds, eval_points)
+        trainer = build_run(spec, scenes.get(scene_name, spec.exposure_index), out / backbone, max_eval_views,
+                            max_seconds=seconds)
+        curve = train_for(trainer, eval_points)
         fps_ldr, fps_ldr_hdr = render_fps(trainer)
         results.append({"backbone": backbone, "curve": curve, "fps_ldr": fps_ldr, "fps_ldr_hdr": fps_ldr_hdr})
     return results

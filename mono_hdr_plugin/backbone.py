@@ -69,6 +69,8 @@ class Backbone(torch.nn.Module):
         loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
         pixel_batch: None to train on whole images, or the number of rays per step.
         render_chunk: None to render whole images in one call, or the most rays per call.
+        paper_backbone: which of the paper's backbones this one reproduces, "NeRF" or "3DGS";
+            `mono-hdr bench` compares it with the paper's figures of that row (None: no row).
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
@@ -79,6 +81,7 @@ class Backbone(torch.nn.Module):
 
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
+    paper_backbone: ClassVar[str | None] = None
     pixel_batch: ClassVar[int | None] = None
     render_chunk: ClassVar[int | None] = None
 
@@ -86,6 +89,11 @@ class Backbone(torch.nn.Module):
         super().__init__()
         self.config = config
         self.max_steps = 30_000
+
+    @classmethod
+    def benchmarks(cls) -> dict[str, tuple[type, Callable[[Any], Any]]]:
+        """Benchmarks this backbone adds to `mono-hdr bench`: name -> (config dataclass, function)."""
+        return {}
 
     @classmethod
     def presets(cls) -> dict[str, Any]:

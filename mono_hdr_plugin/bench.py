@@ -22,18 +22,21 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import MethodConfig
-from mono_hdr_plugin.registry import get_backbone
-from mono_hdr_plugin.train import Trainer, camera_chunks, render_full, train_config_for
+from mono_hdr_plugin.registry import BACKBONES, get_backbone
+from mono_hdr_plugin.train import Trainer, TrainingHook, train_config_for
 
 console = Console()
 
-# The paper's Mono-HDR-GS / HDR-GS figures (REFERENCE.md section 3), HDR PSNR in dB.
-PAPER_TABLE1 = {("nerf", "hdr-nerf"): 13.76, ("nerf", "mono"): 32.86, ("gs", "hdr-gs"): 35.30, ("gs", "mono"): 38.57}
+# The paper's figures (docs/method.md), HDR PSNR in dB, by the paper's backbone rows; a registered
+# backbone reproduces a row through its `paper_backbone`. The ablations are the paper's 3DGS ones.
+PAPER_BASELINE = {"NeRF": "hdr-nerf", "3DGS": "hdr-gs"}
+PAPER_TABLE1 = {("NeRF", "hdr-nerf"): 13.76, ("NeRF", "mono"): 32.86, ("3DGS", "hdr-gs"): 35.30,
+                ("3DGS", "mono"): 38.57}
 PAPER_CONVERTERS = {"mlp-l2h": 19.02, "mlp-h2l": 38.43, "no-h2l": 38.19, "mono": 38.57}
 LOSS_ROWS = {  # name -> (L_ldr, L_hdr, L_h2l), paper figure (None: "fails to train", no figure)
     "ldr": ((True, False, False), None), "hdr": ((False, True, False), 33.93),
@@ -43,6 +46,15 @@ LOSS_ROWS = {  # name -> (L_ldr, L_hdr, L_h2l), paper figure (None: "fails to tr
 }
 PAPER_RATIOS = {"mono": {"1:1": 38.57, "2:1": 37.97, "3:1": 37.53, "5:1": 35.51, "0:1": 33.93, "1:0": 13.50},
                 "hdr-gs": {"1:1": 35.30, "2:1": 35.26, "3:1": 35.16, "5:1": 34.89, "0:1": 33.46, "1:0": 10.51}}
+
+
+def paper_backbones() -> dict[str, str]:
+    """The paper's backbone rows ("NeRF", "3DGS") -> the first registered backbone reproducing each."""
+    found: dict[str, str] = {}
+    for name, entry in BACKBONES.available().items():
+        if entry.plugin.paper_backbone is not None:
+            found.setdefault(entry.plugin.paper_backbone, name)
+    return found
 
 
 def run_facts() -> dict[str, Any]:
@@ -69,15 +81,15 @@ def render_fps(trainer: Trainer, repeats: int = 3) -> tuple[float, float]:
     """Frames per second of one test view: LDR only (3 channels) and LDR + HDR (the method)."""
 
     view = trainer.scene.test[0]
-    camera = view.camera
+    camera, pipeline = view.camera, trainer.pipeline
 
     def ldr_only():
-        for part in camera_chunks(trainer.backbone, camera):
-            features = trainer.backbone.render_ldr_features(part)
+        for part in pipeline.camera_chunks(camera):
+            features = pipeline.backbone.render_ldr_features(part)
             features.composite(features.colors)
 
     def ldr_hdr():
-        render_full(trainer.backbone, trainer.method, camera, view.exposure)
+        pipeline.render(camera, view.exposure)
 
     times = {"ldr": [], "ldr_hdr": []}
     for _ in range(repeats):  # interleaved, so machine load hits both alike
@@ -106,15 +118,18 @@ class RunSpec:
                                          self.hdr_view_ratio, self.losses))
 
 
-def build_run(spec: RunSpec, scene: SceneData, max_steps: int, out: Path, max_eval_views: int | None) -> Trainer:
+def build_run(spec: RunSpec, scene: SceneData, out: Path, max_eval_views: int | None, max_steps: int = 10**9,
+              max_seconds: float | None = None) -> Trainer:
+    """The trainer of one benchmark row: the backbone's preset, the row's method and losses."""
     backbone_class = get_backbone(spec.backbone)
     config_class = backbone_class.config_class
     presets = backbone_class.presets()
     backbone_config = presets[spec.preset or next(iter(presets))]
     use_ldr, use_hdr, use_h2l = spec.losses
     config = train_config_for(config_class)(
-        backbone=backbone_config, preset=spec.preset, max_steps=max_steps, out=out, quiet=True, save_renders=False,
-        checkpoint_every=10**9, max_eval_views=max_eval_views, hdr_view_ratio=spec.hdr_view_ratio,
+        backbone=backbone_config, preset=spec.preset, max_steps=max_steps, max_seconds=max_seconds, out=out,
+        quiet=True, save_renders=False, checkpoint_every=10**9, max_eval_views=max_eval_views,
+        hdr_view_ratio=spec.hdr_view_ratio,
         data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index),
         hdr=MethodConfig(method=spec.method, use_ldr_loss=use_ldr, use_hdr_loss=use_hdr, use_h2l_loss=use_h2l))
     return Trainer(config, spec.backbone, scene)
@@ -133,24 +148,29 @@ class SceneCache:
         return self._scenes[key]
 
 
-def train_for(trainer: Trainer, budget_seconds: float, eval_points: int) -> list[dict[str, Any]]:
-    """Train to a time budget, evaluating at evenly spaced training times (eval not counted)."""
-    curve = []
-    for k in range(eval_points):
-        while trainer.train_seconds < budget_seconds * (k + 1) / eval_points:
-            trainer.train_step()
-        metrics = trainer.evaluate()
-        curve.append({key: metrics[key] for key in ("steps", "train_seconds", "hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max",
-                                                      "ldr_psnr", "ldr_ssim", "ldr_psnr_per_exposure")})
-    return curve
+CURVE_KEYS = ("steps", "train_seconds", "hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "ldr_psnr", "ldr_ssim",
+              "ldr_psnr_per_exposure")
 
 
-def estimate_steps(trainer: Trainer, budget_seconds: float, probe_steps: int = 5) -> int:
-    """Steps that fit in the budget, from a few timed steps (schedules scale to this)."""
-    for _ in range(probe_steps):
-        trainer.train_step()
-    per_step = trainer.train_seconds / max(trainer.step, 1)
-    return max(probe_steps + 1, int(budget_seconds / per_step))
+class EvaluateAtSeconds(TrainingHook):
+    """Evaluate at evenly spaced training times of a --max-seconds run (evaluation not counted)."""
+
+    def __init__(self, points: int):
+        self.points = points
+        self.curve: list[dict[str, Any]] = []
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        due = trainer.config.max_seconds * (len(self.curve) + 1) / self.points
+        if trainer.train_seconds >= due or trainer.finished:
+            metrics = trainer.evaluate()
+            self.curve.append({key: metrics[key] for key in CURVE_KEYS})
+
+
+def train_for(trainer: Trainer, eval_points: int) -> list[dict[str, Any]]:
+    """Train a --max-seconds run to its end, evaluating at `eval_points` evenly spaced training times."""
+    curve = EvaluateAtSeconds(eval_points)
+    trainer.fit([curve])
+    return curve.curve
 
 
 # ------------------------------------------------------------------------------ curves
@@ -162,12 +182,12 @@ class BenchCurvesConfig:
     """Folder for curves.json, curves.md and the plots."""
     quick: bool = False
     """A size that finishes in minutes on 2 cores."""
-    backbones: tuple[str, ...] = ("gs", "nerf")
-    """Backbones to compare."""
+    backbones: tuple[str, ...] = ()
+    """Backbones to compare (default: every backbone that reproduces one of the paper's)."""
     methods: tuple[str, ...] = ("mono", "hdr-gs", "hdr-nerf")
     """Methods to compare."""
-    nerf_presets: tuple[str, ...] = ("fast",)
-    """NeRF presets (paper costs ~2 s a step on CPU)."""
+    presets: tuple[str, ...] = ()
+    """BACKBONE=PRESET pairs (`mono-hdr backbones` lists presets); others run their default preset."""
     scenes: tuple[str, ...] = ("demo",)
     """Studio scenes."""
     budget_seconds: float | None = None
@@ -181,18 +201,19 @@ class BenchCurvesConfig:
 def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
     budget = config.budget_seconds or (60.0 if config.quick else 600.0)
     max_eval_views = config.max_eval_views or (4 if config.quick else None)
-    specs = [RunSpec(backbone=b, method=m, preset=p, scene=s) for s in config.scenes for b in config.backbones
-             for p in (config.nerf_presets if b == "nerf" else (None,)) for m in config.methods]
+    backbones = config.backbones or tuple(paper_backbones().values())
+    presets = parse_presets(config.presets)
+    specs = [RunSpec(backbone=b, method=m, preset=presets.get(b), scene=s) for s in config.scenes for b in backbones
+             for m in config.methods]
     results = {"facts": run_facts(), "budget_seconds": budget, "runs": []}
     scenes = SceneCache()
     with Progress(console=console) as progress, _report_on_exit(lambda: write_curves_report(results, config.out)):
         task = progress.add_task("bench curves", total=len(specs))
         for spec in specs:
             progress.update(task, description=f"{spec.backbone}/{spec.method} on {spec.scene}")
-            trainer = build_run(spec, scenes.get(spec.scene, spec.exposure_index), 10**9, config.out / "runs",
-                                max_eval_views)
-            trainer.backbone.set_run_length(estimate_steps(trainer, budget))
-            curve = train_for(trainer, budget, config.eval_points)
+            trainer = build_run(spec, scenes.get(spec.scene, spec.exposure_index), config.out / "runs",
+                                max_eval_views, max_seconds=budget)
+            curve = train_for(trainer, config.eval_points)
             fps_ldr, fps_ldr_hdr = render_fps(trainer)
             results["runs"].append({"backbone": spec.backbone, "method": spec.method, "preset": spec.preset,
                                     "scene": spec.scene, "curve": curve, "final": curve[-1],
@@ -201,6 +222,18 @@ def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
             write_json(config.out / "curves.json", results)
             progress.advance(task)
     return results
+
+
+def parse_presets(pairs: tuple[str, ...]) -> dict[str, str]:
+    """("nerf=paper", ...) -> {"nerf": "paper"}, each checked against the backbone's presets."""
+    presets = {}
+    for pair in pairs:
+        backbone, _, preset = pair.partition("=")
+        if preset not in get_backbone(backbone).presets():
+            raise ValueError(f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
+                             f"{', '.join(get_backbone(backbone).presets())}")
+        presets[backbone] = preset
+    return presets
 
 
 @contextlib.contextmanager
@@ -276,12 +309,10 @@ class BenchPaperConfig:
     """Studio scene."""
     exposure_indices: tuple[int, ...] | None = None
     """Exposures t1/t3/t5 (0, 1, 2) to average over (default: t3 quick, all three full)."""
-    gs_steps: int | None = None
-    """Training steps per 3DGS row (default 300 quick, 3000 full)."""
-    nerf_steps: int | None = None
-    """Training steps per NeRF row (default 300 quick, 3000 full)."""
-    nerf_preset: str = "fast"
-    """NeRF preset for Table 1."""
+    steps: int | None = None
+    """Training steps per row (default 300 quick, 3000 full)."""
+    presets: tuple[str, ...] = ()
+    """BACKBONE=PRESET pairs; other backbones run their default preset."""
     max_eval_views: int | None = None
     """Test views per evaluation (default 6 quick, all full)."""
     tables: tuple[Literal["table1", "converters", "losses", "ratios"], ...] = ("table1", "converters", "losses", "ratios")
@@ -289,24 +320,28 @@ class BenchPaperConfig:
 
 
 def paper_specs(config: BenchPaperConfig) -> dict[str, list[tuple[str, RunSpec, float | None]]]:
-    """table -> [(variant, spec without exposure, paper figure)]."""
-    tables = {
-        "table1": [(m, RunSpec("nerf", m, preset=config.nerf_preset, scene=config.scene), PAPER_TABLE1[("nerf", m)])
-                   for m in ("hdr-nerf", "mono")] + [
-                  (m, RunSpec("gs", m, scene=config.scene), PAPER_TABLE1[("gs", m)]) for m in ("hdr-gs", "mono")],
-        "converters": [(m, RunSpec("gs", m, scene=config.scene), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS],
-        "losses": [(name, RunSpec("gs", "mono", scene=config.scene, losses=switches), figure)
-                   for name, (switches, figure) in LOSS_ROWS.items()],
-        "ratios": [(f"{m} {r}", RunSpec("gs", m, scene=config.scene, hdr_view_ratio=r), PAPER_RATIOS[m][r])
-                   for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]],
-    }
+    """table -> [(variant, spec without exposure, paper figure)], on the backbones reproducing the paper's."""
+    backbones, presets = paper_backbones(), parse_presets(config.presets)
+
+    def spec(row: str, method: str, **options) -> RunSpec:
+        return RunSpec(backbones[row], method, preset=presets.get(backbones[row]), scene=config.scene, **options)
+
+    tables = {"table1": [(m, spec(row, m), PAPER_TABLE1[(row, m)]) for row in PAPER_BASELINE if row in backbones
+                         for m in (PAPER_BASELINE[row], "mono")]}
+    if "3DGS" in backbones:
+        tables |= {
+            "converters": [(m, spec("3DGS", m), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS],
+            "losses": [(name, spec("3DGS", "mono", losses=switches), figure)
+                       for name, (switches, figure) in LOSS_ROWS.items()],
+            "ratios": [(f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r])
+                       for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]],
+        }
     return {name: rows for name, rows in tables.items() if name in config.tables}
 
 
 def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
     exposures = config.exposure_indices or ((1,) if config.quick else (0, 1, 2))
-    steps = {"gs": config.gs_steps or (300 if config.quick else 3000),
-             "nerf": config.nerf_steps or (300 if config.quick else 3000)}
+    steps = config.steps or (300 if config.quick else 3000)
     max_eval_views = config.max_eval_views or (6 if config.quick else None)
     tables = paper_specs(config)
     unique = {spec.key: spec for rows in tables.values() for _, spec, _ in rows}
@@ -322,11 +357,9 @@ def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
                 progress.update(task, description=f"{spec.backbone}/{spec.method} {spec.hdr_view_ratio} "
                                                   f"losses={spec.losses} t{2 * index + 1}")
                 run = replace(spec, exposure_index=index)
-                trainer = build_run(run, scenes.get(spec.scene, index), steps[spec.backbone], config.out / "runs",
-                                    max_eval_views)
-                trainer.config.max_steps = steps[spec.backbone]
-                while trainer.step < trainer.config.max_steps:
-                    trainer.train_step()
+                trainer = build_run(run, scenes.get(spec.scene, index), config.out / "runs", max_eval_views,
+                                    max_steps=steps)
+                trainer.fit()
                 per_exposure.append(trainer.evaluate())
                 progress.advance(task)
             finished[key] = _average_runs(per_exposure)
@@ -387,22 +420,17 @@ def write_paper_report(results: dict, out: Path) -> None:
     console.print("\n".join(lines))
 
 
-# ------------------------------------------------------------------------------ raster
-@dataclass
-class BenchRasterConfig:
-    """3DGS rasteriser: C++ kernel vs pure-torch twin, 3 vs 6 channels, side by side."""
-
-    out: Path = Path("benchmarks/results")
-    """Folder for raster.json."""
-    repeats: int = 5
-    """Timed runs per measurement (median), after a warm-up."""
+BENCHMARKS = {"curves": (BenchCurvesConfig, bench_curves), "paper": (BenchPaperConfig, bench_paper)}
 
 
-def bench_raster(config: BenchRasterConfig) -> list[dict]:
-    from backbones.gs.benchmark import bench_raster as run  # noqa: PLC0415 - the gs backbone owns its kernel
-
-    return run(config.out, repeats=config.repeats)
-
-
-BENCHMARKS = {"curves": (BenchCurvesConfig, bench_curves), "paper": (BenchPaperConfig, bench_paper),
-              "raster": (BenchRasterConfig, bench_raster)}
+def all_benchmarks() -> dict[str, tuple[type, Any]]:
+    """The benchmarks every pipeline has, plus those each registered backbone contributes
+    (`Backbone.benchmarks`, e.g. the 3DGS rasteriser's `raster`)."""
+    found = dict(BENCHMARKS)
+    for entry in BACKBONES.available().values():
+        for name, benchmark in entry.plugin.benchmarks().items():
+            if name in found:
+                raise ValueError(f"backbone {entry.name!r} contributes a benchmark named {name!r}, which exists "
+                                 "already; rename it")
+            found[name] = benchmark
+    return found

@@ -38,8 +38,8 @@ from rich.progress import track
 from rich.table import Table
 
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.io import write_exr, write_png
-from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key, write_json
+from mono_hdr_plugin.data.io import write_exr, write_json, write_png
+from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key
 from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER, RESPONSE_FILE, SPLITS_FILE
 from mono_hdr_plugin.data.loading import downscale_image
 from mono_hdr_plugin.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,

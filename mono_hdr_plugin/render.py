@@ -5,9 +5,9 @@ from pathlib import Path
 import torch
 
 from mono_hdr_plugin.data.dataset import SceneData
-from mono_hdr_plugin.data.io import write_exr, write_png
-from mono_hdr_plugin.metrics import normalise_hdr
-from mono_hdr_plugin.train import load_trained, render_full
+from mono_hdr_plugin.data.io import write_png
+from mono_hdr_plugin.evaluation import first_per_camera, save_hdr_renders
+from mono_hdr_plugin.train import load_pipeline
 
 
 def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
@@ -19,34 +19,25 @@ def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
 @torch.no_grad()
 def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] = (),
                       max_views: int | None = None, scene: SceneData | None = None) -> list[Path]:
-    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view
+    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test camera
     of the checkpoint's own data (or of `scene`, an in-memory scene)."""
     for exposure in exposures:  # checked before the (slow) checkpoint load
         if not exposure > 0:
             raise ValueError(f"--exposures must be positive seconds, got {exposure}")
-    trainer, _ = load_trained(checkpoint, scene=scene)
-    scene, method, backbone = trainer.scene, trainer.method, trainer.backbone
+    pipeline, scene, _, _ = load_pipeline(checkpoint, scene=scene)
     exposures = exposures or tuple(scene.train_exposures)
     reference_exposure = scene.train_exposures[0]
-    seen, written = set(), []
-    for view in scene.test:
-        if view.view_id in seen:
-            continue
-        seen.add(view.view_id)
-        if max_views is not None and len(seen) > max_views:
-            break
-        stem = view.stem
-        base = render_full(backbone, method, view.camera, reference_exposure)
-        written += [out / f"{stem}_hdr.exr", out / f"{stem}_hdr_mulaw.png"]
-        write_exr(written[-2], base.hdr.float().numpy())
-        write_png(written[-1], normalise_hdr(base.hdr).numpy())
+    written = []
+    for view in first_per_camera(scene.test)[:max_views]:
+        base = pipeline.render(view.camera, reference_exposure)
+        written += save_hdr_renders(out, view, base.hdr)
         for exposure in exposures:
-            if method.renders_any_exposure:
-                ldr = render_full(backbone, method, view.camera, exposure).ldr
+            if pipeline.method.renders_any_exposure:
+                ldr = pipeline.render(view.camera, exposure).ldr
             elif exposure in scene.train_exposures:
                 ldr = base.ldr
             else:  # Mono-HDR learns LDR at its training exposure only: show the HDR render instead
                 ldr = srgb_encode(base.hdr * exposure / reference_exposure)
-            written.append(out / f"{stem}_ldr_{exposure:g}s.png")
+            written.append(out / f"{view.stem}_ldr_{exposure:g}s.png")
             write_png(written[-1], ldr.clamp(0, 1).numpy())
     return written

@@ -1,14 +1,13 @@
 """Rasteriser speed, side by side in one run: C++ kernel vs torch twin, 3 vs 6 channels.
 
-Not a test: timings depend on the machine. `mono-hdr bench raster --out OUT` calls
-`bench_raster`, which prints a table and writes OUT/raster.json.
+Not a test: timings depend on the machine. The 3DGS backbone contributes it to `mono-hdr bench`
+(`GaussianBackbone.benchmarks`): `mono-hdr bench raster --out OUT` prints a table and writes
+OUT/raster.json.
 """
 
-import json
-import os
 import statistics
-import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -17,6 +16,17 @@ import torch
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import eval_sh, view_directions
 from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.data.io import write_json
+
+
+@dataclass
+class BenchRasterConfig:
+    """3DGS rasteriser: C++ kernel vs pure-torch twin, 3 vs 6 channels, side by side."""
+
+    out: Path = Path("benchmarks/results")
+    """Folder for raster.json."""
+    repeats: int = 5
+    """Timed runs per measurement (median), after a warm-up."""
 
 
 def frustum_scene(gaussians: int, height: int, width: int, seed: int = 0) -> tuple[Camera, dict]:
@@ -103,10 +113,9 @@ def bench_raster(out_dir: Path, sizes=((10_000, 128, 128), (50_000, 256, 256)), 
                       f"{r['ldr_hdr_s']:.4f}", f"{r['hdr_overhead']:.3f}x")
     Console().print(table)
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=out_dir, prefix="raster.json", suffix=".tmp")
-    with os.fdopen(handle, "w") as file:
-        json.dump(records, file, indent=2)
-    os.replace(temporary, out_dir / "raster.json")
+    write_json(Path(out_dir) / "raster.json", records)
     return records
+
+
+def bench_raster_command(config: BenchRasterConfig) -> list[dict]:
+    return bench_raster(config.out, repeats=config.repeats)

@@ -89,6 +89,7 @@ class GaussianBackbone(Backbone):
 
     config_class = GaussianConfig
     loss_kind = "l1_dssim"
+    paper_backbone = "3DGS"
     pixel_batch = None
 
     def __init__(self, config: GaussianConfig, scene: SceneInfo):
@@ -135,6 +136,13 @@ class GaussianBackbone(Backbone):
         return DensityControl(schedule, self.scene_extent, grad_threshold=c.grad_threshold,
                               percent_dense=c.percent_dense, prune_opacity=c.prune_opacity,
                               max_screen_size=c.max_screen_size, max_gaussians=c.max_gaussians)
+
+    @classmethod
+    def benchmarks(cls) -> dict:
+        """`mono-hdr bench raster`: the C++ kernel against its torch twin, 3 vs 6 channels."""
+        from backbones.gs.benchmark import BenchRasterConfig, bench_raster_command  # noqa: PLC0415
+
+        return {"raster": (BenchRasterConfig, bench_raster_command)}
 
     @classmethod
     def presets(cls) -> dict[str, GaussianConfig]:

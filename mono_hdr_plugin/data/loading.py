@@ -10,26 +10,17 @@ from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
-
-
-def scene_names() -> list[str]:
-    """Names of the built-in studio scenes."""
-    from mono_hdr_plugin.studio.scenes import SCENES
-
-    return list(SCENES)
+from mono_hdr_plugin.data.sources import named_scene, scene_names
 
 
 def captured_scene(config: DataConfig) -> CapturedScene:
     """Every photo of the scene that `config` names (--data folder or --scene name)."""
     if config.data is not None:
-        from mono_hdr_plugin.data.layouts import read_layout
-
         return read_layout(config.data, config.layout)
     if config.scene is not None:
-        from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
-
-        return studio_captured_scene(get_scene(config.scene), seed=config.exposure_seed)
+        return named_scene(config.scene, seed=config.exposure_seed)
     raise DatasetError("no scene given: pass --data FOLDER or --scene NAME "
                        f"(built-in scenes: {', '.join(scene_names())})")
 

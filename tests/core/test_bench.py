@@ -37,14 +37,19 @@ class TestPaperSpecs:
 
 
 class TestBenchCurves:
-    def test_tiny_run_writes_json_table_and_plots(self, tmp_path):
+    def test_tiny_run_writes_json_table_and_plots(self, tmp_path, monkeypatch):
+        import mono_hdr_plugin.train as train_module
+
+        clock = iter(0.05 * k for k in range(10**6))  # every training step takes 0.05 s
+        monkeypatch.setattr(train_module.time, "perf_counter", lambda: next(clock))
         config = BenchCurvesConfig(out=tmp_path, backbones=("voxel-grid",), methods=("mono", "hdr-gs"),
                                    budget_seconds=1.0, eval_points=2, max_eval_views=1)
         bench_curves(config)
         results = json.loads((tmp_path / "curves.json").read_text())
         assert results["facts"]["git_commit"] and len(results["runs"]) == 2
         run = results["runs"][0]
-        assert len(run["curve"]) == 2 and run["curve"][1]["train_seconds"] >= 1.0
+        assert [point["steps"] for point in run["curve"]] == [10, 20]
+        assert [point["train_seconds"] for point in run["curve"]] == pytest.approx([0.5, 1.0])
         assert run["fps_ldr"] > 0 and run["fps_ldr_hdr"] > 0 and run["peak_memory_mib"] > 0
         for name in ("curves.md", "curves.png", "pareto.png"):
             assert (tmp_path / name).stat().st_size > 0

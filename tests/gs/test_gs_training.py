@@ -8,7 +8,7 @@ import torch
 
 from backbones.gs import GaussianConfig
 from mono_hdr_plugin.checkpoints import load_checkpoint
-from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.train import Trainer, train_config_for
 
 
@@ -21,7 +21,7 @@ def gs_trainer(tmp_path, scene, method: str = "mono", max_steps: int = 2, **back
 
 
 class TestTwoStepsOfEveryMethod:
-    @pytest.mark.parametrize("method", METHODS)
+    @pytest.mark.parametrize("method", method_names())
     def test_two_steps(self, tmp_path, voxel_scene, method):
         trainer = gs_trainer(tmp_path, voxel_scene, method)
         before = [p.detach().clone() for p in trainer.backbone.parameters()]

@@ -151,15 +151,17 @@ class TestProcessBrackets:
         assert linear.shape == (256, 3) and (np.diff(linear, axis=0) > 0).all()
 
 
-class TestProcessWithoutExposureExif:
-    @pytest.fixture(scope="class")
-    def unknown(self, scene, tmp_path_factory):
-        folder = tmp_path_factory.mktemp("no-exif")
-        result = shoot(scene, folder / "photos", replace(SHOOT, exposure_exif=False))
-        report = process_data(ProcessDataConfig(images=result.folder, out=folder / "dataset",
-                                                camera_model="SIMPLE_PINHOLE", num_threads=2))
-        return result, report, folder / "dataset"
+@pytest.fixture(scope="module")
+def unknown(scene, tmp_path_factory):
+    """The same shoot without exposure EXIF, through process-data."""
+    folder = tmp_path_factory.mktemp("no-exif")
+    result = shoot(scene, folder / "photos", replace(SHOOT, exposure_exif=False))
+    report = process_data(ProcessDataConfig(images=result.folder, out=folder / "dataset",
+                                            camera_model="SIMPLE_PINHOLE", num_threads=2))
+    return result, report, folder / "dataset"
 
+
+class TestProcessWithoutExposureExif:
     def test_exposures_unknown_and_flagged_for_learning(self, unknown):
         _, report, out = unknown
         assert not report.exposures_known and report.exposure_range is None
