@@ -23,7 +23,7 @@ def first_per_camera(views: list[View]) -> list[View]:
 def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None) -> list[View]:
     """Test views at exposures the method can render, from the first `max_eval_views` cameras."""
     train_exposures = set(scene.train_exposures)
-    views = [v for v in scene.test if pipeline.method.renders_any_exposure or v.exposure in train_exposures]
+    views = [v for v in scene.test if pipeline.renders_any_exposure or v.exposure in train_exposures]
     if not views:
         raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
                          f"({sorted(train_exposures)}) for method {pipeline.method_name!r}")
@@ -46,12 +46,15 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
     except LpipsUnavailable as reason:
         lpips_model, lpips_skipped = None, str(reason)
     hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
+    # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
+    fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
     per_exposure: dict[float, list[tuple[float, float]]] = {}
     lpips_rows: dict[str, list[float]] = {"lpips_ldr": [], "lpips_hdr": []}
     hdr_rows: list[dict[str, float]] = []
     with pipeline.evaluating():
         for view in views:
-            output = pipeline.render(view.camera, view.exposure)
+            output = (pipeline.render_matching(view.camera, view.image) if view.name in fitted
+                      else pipeline.render(view.camera, view.exposure))
             ldr = output.ldr.clamp(0.0, 1.0)
             per_exposure.setdefault(view.exposure, []).append(
                 (psnr(ldr, view.image), ssim(ldr.double(), view.image.double()).item()))
@@ -75,6 +78,7 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
         "ldr_psnr_per_exposure": ldr_psnr_by_exposure,
         "ldr_ssim_per_exposure": ldr_ssim_by_exposure,
         "test_views": len({v.view_id for v in views}),
+        "ldr_exposure_fitted": sum(view.name in fitted for view in views),
     }
     for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"):
         metrics[key] = _mean([row[key] for row in hdr_rows]) if hdr_rows else None

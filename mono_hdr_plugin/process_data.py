@@ -40,7 +40,8 @@ from rich.table import Table
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key
-from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER, RESPONSE_FILE, SPLITS_FILE
+from mono_hdr_plugin.data.layouts.hdr_gs import (EXPOSURES_FILE, MODEL_FOLDER, REPORT_FILE, RESPONSE_FILE,
+                                                 SPLITS_FILE)
 from mono_hdr_plugin.data.loading import downscale_image
 from mono_hdr_plugin.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,
                                              brightness_order, detect_brackets, dynamic_range_stops,
@@ -57,7 +58,9 @@ EXHAUSTIVE_LIMIT = 80
 WIDE_RANGE_STOPS = 8.0
 """Exposures spanning more stops than this are worth a warning: more than one sensor's range."""
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
-REPORT_FILE = "process_data.json"
+RELIABLE_POINTS = 0.5
+"""A photo's recovered pose is trusted for bracket detection when it sees this fraction of the
+median photo's 3D points."""
 FULL_FRAME_WIDTH_MM = 36.0
 """Width of a 35 mm film frame: EXIF FocalLengthIn35mmFilm is relative to it."""
 ExposureSource = Literal["exif", "raw", "csv", "flag", "unknown"]
@@ -524,7 +527,12 @@ def scene_scale(model) -> float:
 
 
 def bracket_candidates(photos: list[PhotoRecord], staged: list[StagedPhoto], model) -> list[BracketCandidate]:
-    poses = {image.name: image for image in model.images.values() if image.has_pose}
+    """What bracket detection needs of each photo; poses seen through fewer than RELIABLE_POINTS of
+    the median photo's 3D points are left out (on the studio captures, a bright bracket member seen
+    through a third of the median's points was placed 2 % of the scene and 1.6 degrees off)."""
+    placed = [image for image in model.images.values() if image.has_pose]
+    enough = RELIABLE_POINTS * float(np.median([image.num_points3D for image in placed]))
+    poses = {image.name: image for image in placed if image.num_points3D >= enough}
     candidates = []
     for photo, stage in zip(photos, staged):
         image = poses.get(photo.name)

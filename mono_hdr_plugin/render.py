@@ -32,7 +32,7 @@ def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] 
         base = pipeline.render(view.camera, reference_exposure)
         written += save_hdr_renders(out, view, base.hdr)
         for exposure in exposures:
-            if pipeline.method.renders_any_exposure:
+            if pipeline.renders_any_exposure:
                 ldr = pipeline.render(view.camera, exposure).ldr
             elif exposure in scene.train_exposures:
                 ldr = base.ldr

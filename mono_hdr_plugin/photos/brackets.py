@@ -7,8 +7,9 @@ Finding them. Photos are taken in file order, and two neighbours show one viewpo
   places it a little off); or
 - structure from motion put them at (almost) the same pose and, when both carry a capture time,
   within the gap; or
-- one of them could not be placed and it was taken within the gap (bracket members too dark or
-  too bright for structure from motion, from a camera that does not mark its brackets).
+- one of them has no trustworthy pose and it was taken within the gap (bracket members too dark
+  or too bright for structure from motion to place well, from a camera that does not mark its
+  brackets).
 A run of one viewpoint is then cut wherever an exposure repeats, so two brackets shot at one
 place stay two sets. Before merging, `aligned_members` checks the pixels: a member whose
 linearised pixels do not correlate with its neighbour's shows something else and is left out.
@@ -64,7 +65,8 @@ class BracketCandidate:
     timestamp: float | None = None
     auto_bracket: bool = False
     center: np.ndarray | None = None
-    """[3] camera centre from structure from motion; None when the photo was not placed."""
+    """[3] camera centre from structure from motion; None when the photo was not placed, or placed
+    from so few points that its pose is not to be trusted (a very dark or bright bracket member)."""
     rotation: np.ndarray | None = None
     """[3, 3] camera-to-world rotation from structure from motion."""
 

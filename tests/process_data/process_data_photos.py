@@ -82,17 +82,3 @@ def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoS
         names.append(name)
         times.append(float(exposure))
     return PhotoShoot(folder, cameras, times, names)
-
-
-def umeyama(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity (scale, rotation [3, 3], translation [3]) that best maps points [N, 3] onto target."""
-    source_mean, target_mean = source.mean(0), target.mean(0)
-    centred_source, centred_target = source - source_mean, target - target_mean
-    u, singular, vt = np.linalg.svd(centred_target.T @ centred_source / len(source))
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # a reflection is not a rotation
-        sign[2, 2] = -1
-    rotation = u @ sign @ vt
-    scale_factor = (singular * np.diag(sign)).sum() / (centred_source**2).sum(1).mean()
-    return scale_factor, rotation, target_mean - scale_factor * rotation @ source_mean
-

@@ -19,7 +19,8 @@ from mono_hdr_plugin.process_data import (PhotoRecord, ProcessDataConfig, assign
                                           check_registered, exposure_warnings, find_photos, load_photo, process_data,
                                           read_exposure_csv, relative_exposure)
 from mono_hdr_plugin.studio.shoot import save_jpeg
-from process_data_photos import shoot, textured_scene, umeyama
+from mono_hdr_plugin.studio.alignment import similarity
+from process_data_photos import shoot, textured_scene
 
 ROTATION_LIMIT_DEG = 1.0
 POSITION_LIMIT = 0.01
@@ -33,7 +34,7 @@ def camera_errors(out, cameras) -> tuple[float, float]:
     truth = [cameras[int(view.name.split("_")[0])] for view in views]
     estimated = np.array([view.camera.center.double().numpy() for view in views])
     known = np.array([camera.center.double().numpy() for camera in truth])
-    scale, rotation, translation = umeyama(estimated, known)
+    scale, rotation, translation = similarity(estimated, known)
     aligned = scale * estimated @ rotation.T + translation
     position = np.linalg.norm(aligned - known, axis=1).max() / np.linalg.norm(known.max(0) - known.min(0))
     angles = []

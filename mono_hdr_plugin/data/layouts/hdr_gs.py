@@ -7,6 +7,7 @@
     poses_bounds_exps.npy (real scenes)           column 17 = exposure, row 5 (id - 1) + e
     splits.json (optional)                        {"test": [image names]}: the other views train
     camera_response.json (optional)               the camera's response curve (process-data)
+    process_data.json (optional)                  process-data's report: HDR only at bracketed views
 
 Exposure of a photo: exposures.json if present, else the npy row, else the synthetic
 t1..t5 = 0.125, 0.5, 2, 8, 32 s that the official code hard-codes. With exposures.json
@@ -37,6 +38,8 @@ SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 EXPOSURES_FILE = "exposures.json"
 SPLITS_FILE = "splits.json"
 RESPONSE_FILE = "camera_response.json"
+REPORT_FILE = "process_data.json"
+"""Written by process-data: its captures have HDR only at the bracketed viewpoints, by design."""
 UNKNOWN_EXPOSURE = 1.0
 """Seconds given to a photo whose exposure is unknown (null in exposures.json)."""
 POSES_FILE = "poses_bounds_exps.npy"
@@ -156,6 +159,18 @@ def _points(model):
     return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
 
 
+def _response(folder: Path) -> list | None:
+    """The response table [256][3] (code value k / 255 -> linear) of camera_response.json, if any."""
+    path = folder / RESPONSE_FILE
+    if not path.is_file():
+        return None
+    table = np.asarray(load_json(path, "delete it; process-data writes it again").get("linear_rgb", []), np.float64)
+    if table.shape != (256, 3) or not np.isfinite(table).all() or (np.diff(table, axis=0) <= 0).any():
+        raise DatasetError(f"{path}: linear_rgb must be 256 increasing [r, g, b] rows; delete the file (sRGB is "
+                           "then assumed) or run process-data again")
+    return table.tolist()
+
+
 def _test_names(folder: Path, names: list[str]) -> set[str] | None:
     """The image names splits.json holds out for testing; None without the file."""
     path = folder / SPLITS_FILE
@@ -202,7 +217,9 @@ def read(folder: Path) -> CapturedScene:
         bounds_from_cameras([v.camera for v in views])
     return CapturedScene(name=folder.name, views=views, bounds_min=bounds[0], bounds_max=bounds[1],
                          points=points, point_colors=colours,
-                         metadata={"source": str(folder), "layout": "hdr-gs", "unknown_exposures": exposures.unknown})
+                         metadata={"source": str(folder), "layout": "hdr-gs", "unknown_exposures": exposures.unknown,
+                                   "camera_response": _response(folder),
+                                   "partial_hdr_expected": (folder / REPORT_FILE).is_file()})
 
 
 def _write_model(scene: CapturedScene, model_folder: Path) -> None:
