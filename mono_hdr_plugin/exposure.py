@@ -174,13 +174,16 @@ def photometric_log_exposures(views, points: Tensor, response: np.ndarray, refer
                               iterations: int = 10) -> np.ndarray:
     """[V] ln(t_i / t_ref) measured from the photos: the points' linearised brightness in each view.
 
-    Every point is projected into every view (a pixel trusted when no channel is near clipping and
-    the mean is above the noise floor); log brightness = view offset + point radiance is solved
-    by a two-way median (Tukey's median polish), which occlusions and highlights do not move.
-    A view that sees no usable point keeps 0.
+    Every point is projected into every view; a point counts only when its pixel in every view
+    that sees it is neither near clipping nor near the noise floor (keeping a point's darker
+    views where its brighter ones clip would favour pixels whose noise happened to be low, and
+    compress the ratios by ~15 % on the studio's captures). Log brightness = view offset + point
+    radiance is solved by a two-way median (Tukey's median polish), which occlusions and
+    highlights do not move. A view that sees no usable point keeps 0.
     """
     points = points.double().numpy()
     logs = np.full((len(views), len(points)), np.nan)
+    clipped = np.zeros(len(points), bool)
     for row, view in enumerate(views):
         camera = view.camera
         local = points @ camera.w2c[:3, :3].double().numpy().T + camera.w2c[:3, 3].double().numpy()
@@ -191,10 +194,11 @@ def photometric_log_exposures(views, points: Tensor, response: np.ndarray, refer
         seen = (depth > 0) & (cols >= 0) & (cols < camera.width) & (rows >= 0) & (rows < camera.height)
         code = view.image.numpy()[rows[seen].astype(int), cols[seen].astype(int)]
         usable = (code.max(-1) < 0.95) & (code.mean(-1) > 0.1)
+        clipped[np.flatnonzero(seen)[~usable]] = True
         linear = decode(torch.from_numpy(code[usable]), torch.as_tensor(response, dtype=torch.float32)).numpy()
         logs[row, np.flatnonzero(seen)[usable]] = np.log(linear.mean(-1))
     offsets = np.zeros(len(views))
-    shared = np.isfinite(logs).sum(0) >= 2
+    shared = (np.isfinite(logs).sum(0) >= 2) & ~clipped
     logs = logs[:, shared]
     if logs.shape[1] == 0:
         return offsets

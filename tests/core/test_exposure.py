@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from mono_hdr_plugin.exposure import (ExposureConfig, ViewExposures, build_view_exposures, choose_reference, decode,
-                                      encode, srgb_response)
+                                      encode, photometric_log_exposures, srgb_response)
 
 SRGB = torch.from_numpy(srgb_response()).float()
 
@@ -39,8 +39,8 @@ class TestResponseTable:
         assert torch.autograd.gradcheck(lambda x: encode(x, response), (linear,))
 
 
-def exposures_module(known_log, reference=0, learn=True):
-    return ViewExposures(torch.tensor(known_log), reference, 1.0, srgb_response(), learn=learn)
+def exposures_module(initial_log, reference=0, learn=True):
+    return ViewExposures(torch.tensor(initial_log), reference, 1.0, srgb_response(), learn=learn)
 
 
 class TestBrightness:
@@ -52,7 +52,8 @@ class TestBrightness:
     def test_reference_view_stays_put(self):
         module = exposures_module([0.0, 0.5])
         with torch.no_grad():
-            module.correction.fill_(0.3)
+            for correction in module.correction:
+                correction.fill_(0.3)
         assert module.log_relative(0) == 0.0
         assert module.log_relative(1).item() == pytest.approx(0.8)
 
@@ -77,13 +78,13 @@ class TestLearning:
         photos = [module.brighten(canonical, value).detach() for value in true_log]
         image_logits = torch.zeros_like(canonical, requires_grad=True)
         optimiser = torch.optim.Adam([{"params": [image_logits], "lr": 0.1},
-                                      {"params": [module.correction], "lr": 0.05}])
+                                      {"params": list(module.correction), "lr": 0.05}])
         decay = torch.optim.lr_scheduler.ExponentialLR(optimiser, gamma=0.995)  # lr / 20 by the end
         for step in range(600):
             view = step % len(photos)
             rendered = module.brighten(torch.sigmoid(image_logits), module.log_relative(view))
             loss = torch.abs(rendered - photos[view]).mean()
-            optimiser.zero_grad()
+            optimiser.zero_grad(set_to_none=True)  # as the trainer: Adam skips the views not rendered
             loss.backward()
             optimiser.step()
             decay.step()
@@ -91,13 +92,14 @@ class TestLearning:
 
     def test_frozen_when_not_learning(self):
         module = exposures_module([0.0, 0.3], learn=False)
-        assert module.parameter_groups() == [] and not module.correction.requires_grad
+        assert module.parameter_groups() == [] and not module.learned
         np.testing.assert_allclose(module.relative_exposures().numpy(), np.exp([0.0, 0.3]), rtol=1e-6)
 
     def test_state_round_trip(self):
         module = exposures_module([0.0, 0.3, -0.2], reference=1)
         with torch.no_grad():
-            module.correction.copy_(torch.tensor([0.1, 0.0, 0.05]))
+            for correction, value in zip(module.correction, (0.1, 0.0, 0.05)):
+                correction.fill_(value)
         loaded = ViewExposures.from_state_dict({f"exposures.{k}": v for k, v in module.state_dict().items()})
         loaded.load_state_dict(module.state_dict())
         torch.testing.assert_close(loaded.relative_exposures(), module.relative_exposures())
@@ -112,6 +114,33 @@ class FakeScene:
     def __init__(self, exposures, unknown=()):
         self.train = [FakeView(e, f"{i:03d}_0.png", 0.1 * i) for i, e in enumerate(exposures)]
         self.metadata = {"unknown_exposures": list(unknown)}
+        self.points = None
+
+
+class TestPhotometricStart:
+    def test_measures_the_ratios_of_a_lit_plane(self):
+        """A textured plane photographed from four places at known exposures: the points' brightness
+        across the photos gives the ratios."""
+        from mono_hdr_plugin.cameras import Camera, look_at
+        from mono_hdr_plugin.data.dataset import View
+
+        rng = np.random.default_rng(0)
+        points = np.concatenate([rng.uniform(-1, 1, (400, 2)), np.zeros((400, 1))], 1)
+        albedo = rng.uniform(0.05, 0.3, 400)
+        true_log = np.array([0.0, 0.5, -0.4, 0.9])
+        views = []
+        for index, value in enumerate(true_log):
+            eye = torch.tensor([0.3 * index - 0.45, -0.2, 3.0])
+            camera = Camera(c2w=look_at(eye, torch.zeros(3)), fx=60.0, fy=60.0, cx=32.0, cy=32.0, width=64, height=64)
+            image = np.zeros((64, 64, 3))
+            local = (points - eye.numpy()) @ camera.c2w[:3, :3].double().numpy()
+            cols = np.floor(60 * local[:, 0] / local[:, 2] + 32).astype(int)
+            rows = np.floor(60 * local[:, 1] / local[:, 2] + 32).astype(int)
+            linear = np.clip(albedo * math.exp(value), 0, 1)
+            image[rows, cols] = colour.cctf_encoding(linear, function="sRGB")[:, None]
+            views.append(View(camera=camera, image=torch.from_numpy(image).float(), exposure=1.0, view_id=index))
+        measured = photometric_log_exposures(views, torch.from_numpy(points), srgb_response(), reference=0)
+        np.testing.assert_allclose(measured, true_log, atol=0.02)
 
 
 class TestBuild:
