@@ -1,5 +1,6 @@
 """Exposure per view: the response table, the brightness term, and learning known exposure ratios."""
 
+import json
 import math
 
 import colour
@@ -165,3 +166,67 @@ class TestBuild:
     def test_reference_is_the_median(self):
         assert choose_reference([4.0, 1.0, 2.0, 8.0, 0.5], [0.0] * 5) == 2
         assert choose_reference([1.0, 1.0, 1.0], [0.9, 0.1, 0.5]) == 2  # ties: the median brightness
+
+
+def auto_exposed(scene, exposures, known: bool):
+    """The voxel capture re-photographed at a different exposure per training view (gamma 2.2)."""
+    from dataclasses import replace as replace_view
+
+    from mono_hdr_plugin.data.dataset import SceneData
+
+    train = [replace_view(view, image=(view.hdr * exposure).clamp(0, 1) ** (1 / 2.2),
+                          exposure=exposure if known else 1.0)
+             for view, exposure in zip(scene.train, exposures)]
+    gamma = np.stack([np.linspace(0, 1, 256) ** 2.2] * 3, -1)
+    metadata = {"camera_response": gamma.tolist(),
+                "unknown_exposures": [] if known else [view.name for view in train]}
+    return SceneData(name="auto", train=train, test=scene.test, bounds_min=scene.bounds_min,
+                     bounds_max=scene.bounds_max, metadata=metadata)
+
+
+class TestTraining:
+    """The trainer gives each view its exposure: the view index reaches the pipeline, corrections learn,
+    and the learned values are written and saved."""
+
+    exposures = [0.5, 0.9, 0.3, 0.6]
+
+    def run(self, voxel_scene, voxel_backbone_config, tmp_path, known: bool, method: str = "mono", steps: int = 6):
+        from mono_hdr_plugin.train import Trainer, train_config_for
+
+        config = train_config_for(type(voxel_backbone_config))(
+            backbone=voxel_backbone_config, out=tmp_path / "run", quiet=True, max_steps=steps, save_renders=False,
+            checkpoint_every=10**9, max_eval_views=2)
+        config.hdr.method = method
+        return Trainer(config, "voxel-grid", auto_exposed(voxel_scene, self.exposures, known))
+
+    def test_known_auto_exposure_is_fixed(self, voxel_scene, voxel_backbone_config, tmp_path):
+        trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=True)
+        exposures = trainer.pipeline.exposures
+        assert not exposures.learned and float(exposures.reference_exposure) == pytest.approx(0.6)  # upper median of 4
+        np.testing.assert_allclose(exposures.relative_exposures().numpy(), np.array(self.exposures) / 0.6, rtol=1e-6)
+
+    @pytest.mark.parametrize("method", ["mono", "hdr-gs"])
+    def test_unknown_exposures_learn(self, voxel_scene, voxel_backbone_config, tmp_path, method):
+        trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=False, method=method)
+        exposures = trainer.pipeline.exposures
+        assert exposures.learned
+        before = exposures.relative_exposures().clone()
+        metrics = trainer.train()
+        moved = exposures.relative_exposures() != before
+        assert moved.sum() >= 2 and not moved[int(exposures.reference)]  # the reference stays fixed
+        report = json.loads((tmp_path / "run" / "learned_exposures.json").read_text())
+        assert report["learned"] and report["reference_exposure"] is None
+        assert report["views"][trainer.scene.train[1].name]["relative"] == pytest.approx(float(exposures.relative_exposures()[1]))
+        assert metrics["ldr_exposure_fitted"] == 0  # the test views kept their known exposure
+
+    def test_checkpoint_keeps_the_exposures(self, voxel_scene, voxel_backbone_config, tmp_path):
+        from mono_hdr_plugin.train import load_pipeline
+
+        trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=False)
+        trainer.train()
+        loaded = load_pipeline(trainer.checkpoint_path(), scene=trainer.scene).pipeline
+        torch.testing.assert_close(loaded.exposures.relative_exposures(), trainer.pipeline.exposures.relative_exposures())
+        camera, exposure = trainer.scene.test[0].camera, trainer.scene.test[0].exposure
+        with trainer.pipeline.evaluating():
+            expected = trainer.pipeline.render(camera, exposure)
+        torch.testing.assert_close(loaded.render(camera, exposure).ldr, expected.ldr)
