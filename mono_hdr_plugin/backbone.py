@@ -96,9 +96,19 @@ class Backbone(torch.nn.Module):
         return {}
 
     @classmethod
+    def tuning_space(cls) -> dict[str, tuple]:
+        """What `mono-hdr bench paper`'s recipe table tunes for every method alike: a field path of
+        this backbone's config -> candidate values (each method gets the same grid)."""
+        return {}
+
+    @classmethod
     def presets(cls) -> dict[str, Any]:
         """Named configurations of this backbone (`--preset NAME`); the first one is the default."""
         return {"default": cls.config_class()}
+
+    def statistics(self) -> dict[str, float]:
+        """Numbers the benchmarks report next to quality (3DGS: the Gaussian count)."""
+        return {}
 
     def set_run_length(self, max_steps: int) -> None:
         """Told by the trainer before step 0, so schedules (densification) scale to the run.

@@ -23,10 +23,13 @@ differ or are learned. The learned values are written to OUT/learned_exposures.j
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
+
+from mono_hdr_plugin.validation import POSITIVE
 
 RESPONSE_LEVELS = 256
 FIT_RANGE_STOPS = 10.0
@@ -43,6 +46,8 @@ class ExposureConfig:
     model. Default: on when the data's exposures are unknown (process-data found none)."""
     exposure_lr: float = 0.01
     """Adam learning rate of the learned log exposures."""
+
+    flag_rules: ClassVar = {"exposure_lr": POSITIVE}
 
 
 def srgb_response() -> np.ndarray:

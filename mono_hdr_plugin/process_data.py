@@ -43,6 +43,7 @@ from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key
 from mono_hdr_plugin.data.layouts.hdr_gs import (EXPOSURES_FILE, MODEL_FOLDER, REPORT_FILE, RESPONSE_FILE,
                                                  SPLITS_FILE)
 from mono_hdr_plugin.data.loading import downscale_image
+from mono_hdr_plugin.outputs import check_replaceable
 from mono_hdr_plugin.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,
                                              brightness_order, detect_brackets, dynamic_range_stops,
                                              estimate_relative_exposures, merge_bracket, recover_response,
@@ -697,6 +698,9 @@ def check_config(config: ProcessDataConfig) -> None:
                            "or choose another --out")
     if config.images is not None and config.out.resolve() == config.images.resolve():
         raise DatasetError("--out must differ from --images: the photos would be replaced")
+    # --out is replaced as a whole: only a dataset process-data wrote, never one holding the inputs.
+    check_replaceable(config.out, config.out / REPORT_FILE, [config.images, config.exposure_csv],
+                      "process-data --overwrite replaces")
 
 
 def stage_photos(sources: list[Path], work: Path, raw_response: RawResponse,

@@ -2,15 +2,19 @@
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
+from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
 from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 
 @dataclass
@@ -61,6 +65,15 @@ class GaussianConfig:
     """Stop growing beyond this many Gaussians (a CPU memory and time budget)."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
+
+    flag_rules: ClassVar = {
+        "sh_degree": between(0, 3), "sh_increase_every": at_least(1), "random_init_points": at_least(1),
+        "init_opacity": between(0, 1, low_open=True, high_open=True), "lr_means": POSITIVE, "lr_means_final": POSITIVE,
+        "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE, "lr_scales": POSITIVE,
+        "lr_quats": POSITIVE, "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
+        "min_refine_every": at_least(1), "reset_opacity_every": at_least(1), "grad_threshold": NON_NEGATIVE,
+        "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True), "max_screen_size": POSITIVE,
+        "max_gaussians": at_least(1)}
 
 
 class _RenderExtras(dict):
@@ -114,7 +127,7 @@ class GaussianBackbone(Backbone):
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
         if scene.points is not None and len(scene.points) > 0:
-            points = scene.points.detach().float().reshape(-1, 3)
+            points = scene.points.detach().float().reshape(-1, 3).clone()  # training moves the means in place
             if scene.point_colors is None:
                 return points, torch.full_like(points, 0.5)
             colors = scene.point_colors.detach().reshape(-1, 3)
@@ -159,6 +172,9 @@ class GaussianBackbone(Backbone):
     @property
     def num_gaussians(self) -> int:
         return self.means.shape[0]
+
+    def statistics(self) -> dict[str, float]:
+        return {"gaussians": self.num_gaussians}
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
@@ -226,6 +242,10 @@ class GaussianBackbone(Backbone):
             if name not in tensors:
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
+
+    def export_ply(self, path) -> Path:
+        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
+        return export_ply(self, path)
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree

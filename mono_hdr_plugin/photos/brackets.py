@@ -256,8 +256,10 @@ def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | No
     (logs, so that a few bright pixels do not decide it). Too few such pixels, or no variation in
     them, is no evidence either way: True.
     """
-    mask = (brighter > WELL_EXPOSED[0]) & (brighter < WELL_EXPOSED[1])
-    if mask.sum() < MIN_SHARED_PIXELS:
+    # Whole pixels: a channel beside a clipped one is unreliable (demosaicing, highlight recovery).
+    well_exposed = ((brighter > WELL_EXPOSED[0]) & (brighter < WELL_EXPOSED[1])).all(-1)
+    mask = np.broadcast_to(well_exposed[..., None], brighter.shape)
+    if well_exposed.sum() < MIN_SHARED_PIXELS:
         return True
     if np.mean(darker[mask] >= WELL_EXPOSED[1]) > 0.05:
         return False

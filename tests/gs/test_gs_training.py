@@ -69,3 +69,19 @@ class TestShortStudioRun:
         after = trainer.train()
         assert after["hdr_psnr"] > before["hdr_psnr"] + 2.0
         assert after["ldr_psnr"] > before["ldr_psnr"] + 2.0
+
+
+class TestScenePointsStayPut:
+    def test_training_does_not_move_the_scene_points(self, tmp_path, voxel_scene):
+        """The means start from the scene's points: they must be a copy, or a second run in the same
+        process (benchmarks, tests) starts from the first run's trained means."""
+        from dataclasses import replace
+
+        points = torch.rand(300, 3) * 2 - 1
+        scene = replace(voxel_scene, points=points, point_colors=torch.rand(300, 3))
+        before = points.clone()
+        trainer = gs_trainer(tmp_path, scene, max_steps=3)
+        for _ in range(3):
+            trainer.train_step()
+        assert not torch.equal(trainer.backbone.means.detach()[:300], before)  # the means did move
+        assert torch.equal(scene.points, before)

@@ -153,7 +153,7 @@ def train_and_check(trainer: Trainer, steps: int) -> dict:
         value = metrics[key]
         if value is None and key.startswith("hdr"):
             continue  # no HDR ground truth in the test views
-        # PSNR of identical images is +inf by definition (REFERENCE.md section 5); never NaN
+        # PSNR of identical images is +inf by definition (docs/robustness.md); never NaN
         ok = math.isfinite(value) or (value == math.inf and "psnr" in key)
         assert ok, f"{key} = {value}"
     payload = load_checkpoint(trainer.checkpoint_path())

@@ -1,4 +1,4 @@
-"""REFERENCE.md section 5, one named test per numerical hard case, through the public APIs of
+"""docs/robustness.md, one named test per numerical hard case, through the public APIs of
 the rasteriser (backbones.gs), the volume renderer (backbones.nerf), the converters and the
 metrics. Data, checkpoint and CLI cases are in test_bad_input_matrix.py / test_crash_safety.py.
 """
