@@ -31,7 +31,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     model = load_model(args.checkpoint)
-    renderer = ViewerRenderer(ModelSnapshots(model.backbone, model.method, model.step, copy_model=False), model.scene)
+    renderer = ViewerRenderer(ModelSnapshots(model.pipeline, model.step, copy_model=False), model.scene)
     camera = viewer_from_camera(first_per_camera(model.scene.test)[0].camera)
     aspect_camera = type(camera)(camera.wxyz, camera.position, camera.fov, 4 / 3)  # a 4:3 browser canvas
     rows = []
@@ -49,8 +49,8 @@ def main() -> None:
         print(f"{rows[-1]['width']} x {height}: {median * 1000:.0f} ms ({1 / median:.1f} fps)")
     rate = statistics.median(row["pixels_per_second"] for row in rows)
     moving_height = max(MIN_HEIGHT, int(math.sqrt(rate * MOVING_FRAME_SECONDS / (4 / 3))))
-    result = {"checkpoint": str(args.checkpoint), "backbone": model.backbone_name,
-              "method": model.method.config.method, "torch_threads": torch.get_num_threads(),
+    result = {"checkpoint": str(args.checkpoint), "backbone": model.pipeline.backbone_name,
+              "method": model.pipeline.method_name, "torch_threads": torch.get_num_threads(),
               "machine": platform.processor() or platform.machine(),
               "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip(),
               "renders": rows, "moving_height": moving_height}

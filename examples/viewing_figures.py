@@ -38,7 +38,7 @@ def main() -> None:
     render_exposure_sweep(model, strip_camera, evs, args.out / "exposure_sweep.mp4", args.out / "exposure_sweep.png")
     (args.out / "exposure_sweep.mp4").unlink()
 
-    snapshots = ModelSnapshots(model.backbone, model.method, model.step, copy_model=False)
+    snapshots = ModelSnapshots(model.pipeline, model.step, copy_model=False)
     viewer = Viewer(ViewerRenderer(snapshots, model.scene), port=0, out=args.out / "saved_views")
     try:
         viewer.output.value = VIEWER_OUTPUTS[args.output]

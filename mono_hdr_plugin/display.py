@@ -24,7 +24,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mono_hdr_plugin.frames import ExposureModel, Frame, srgb_encode
+from mono_hdr_plugin.frames import ExposureModel, srgb_encode
+from mono_hdr_plugin.pipeline import Frame
 from mono_hdr_plugin.metrics import mu_law
 
 Output = Literal["ldr", "hdr-srgb", "hdr-filmic", "hdr-mulaw", "depth"]

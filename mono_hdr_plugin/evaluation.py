@@ -8,10 +8,9 @@ import torch
 
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
-from mono_hdr_plugin.methods import MethodOutput
 from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, normalise_hdr, psnr,
                                      ssim, tone_mapped_pair)
-from mono_hdr_plugin.pipeline import Pipeline
+from mono_hdr_plugin.pipeline import Frame, Pipeline
 
 
 def first_per_camera(views: list[View]) -> list[View]:
@@ -96,7 +95,7 @@ def _mean(values: list[float]) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
-def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> list[Path]:
+def save_view_renders(render_dir: Path, view: View, output: Frame) -> list[Path]:
     """save_hdr_renders plus <stem>_ldr.png, the LDR render at the view's exposure."""
     path = render_dir / f"{view.stem}_ldr.png"
     write_png(path, output.ldr.numpy())  # write_png clips to [0, 1]

@@ -21,7 +21,7 @@ from torch import Tensor
 from mono_hdr_plugin.data.io import atomic_path
 from mono_hdr_plugin.display import to_display, to_uint8
 from mono_hdr_plugin.evaluation import first_per_camera
-from mono_hdr_plugin.frames import LoadedModel, load_model, render_frame
+from mono_hdr_plugin.frames import LoadedModel, load_model
 from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
 from mono_hdr_plugin.validation import FRACTION, POSITIVE, at_least
 
@@ -70,7 +70,7 @@ def export_command(config: ExportConfig) -> None:
         raise ValueError("need --scale > 0, 0 <= --min-alpha <= 1 and --max-points >= 1, got "
                          f"{config.scale}, {config.min_alpha}, {config.max_points}")
     model = load_model(config.checkpoint)
-    if hasattr(model.backbone, "export_ply"):
+    if hasattr(model.pipeline.backbone, "export_ply"):
         written = export_splats(model, config.out)
     else:
         cloud = point_cloud(model, config.scale, config.min_alpha, config.max_points)
@@ -87,7 +87,7 @@ def converters_paths(ply: Path) -> tuple[Path, Path]:
 
 def export_splats(model: LoadedModel, path: Path) -> list[Path]:
     """The Gaussians as a 3DGS PLY and the method's converters beside it."""
-    model.backbone.export_ply(path)
+    model.pipeline.backbone.export_ply(path)
     return [path, *save_converters(model, path)]
 
 
@@ -95,7 +95,7 @@ def save_converters(model: LoadedModel, ply: Path) -> tuple[Path, Path]:
     """OUT.converters.npz: the method's weights by state-dict name (float32); OUT.converters.json:
     format, method and its config, the exposure model, and how to apply the weights."""
     weights_path, description_path = converters_paths(ply)
-    method = model.method
+    method = model.pipeline.method
     arrays = {name: value.detach().float().numpy() for name, value in method.state_dict().items()}
     with atomic_path(weights_path) as temporary:
         with open(temporary, "wb") as handle:  # np.savez on a path would append another .npz
@@ -157,9 +157,9 @@ def point_cloud(model: LoadedModel, scale: float = 1.0, min_alpha: float = 0.5,
     views = first_per_camera(model.scene.train)
     for view in track(views, description="point cloud", console=console, transient=True):
         camera = view.camera.scaled(scale) if scale != 1 else view.camera
-        frame = render_frame(model.backbone, model.method, camera, model.exposure.reference_exposure)
+        frame = model.pipeline.render(camera, model.exposure.reference_exposure)
         if frame.depth is None or frame.alpha is None:
-            raise ValueError(f"the {model.backbone_name!r} backbone renders no depth and opacity "
+            raise ValueError(f"the {model.pipeline.backbone_name!r} backbone renders no depth and opacity "
                              "(LdrFeatures.extras 'depth' and 'alpha'), so there is no surface to export")
         origins, directions = camera.rays()
         found, rays = points_from_depth(origins.reshape(-1, 3), directions.reshape(-1, 3), frame.depth.reshape(-1),

@@ -1,22 +1,19 @@
 """A trained model as linear images: the one rendering path of the viewer, camera-path videos,
 exposure sweeps and exports.
 
-Everything here goes through `render_frame(backbone, method, camera, exposure)` and
-`load_model(checkpoint)`, so the code that owns the model can change behind two functions.
+Everything here renders through `Pipeline.render` (the one render path, also used by
+evaluation) and loads through `load_model(checkpoint)`.
 """
 
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import torch
 from torch import Tensor
 
-from mono_hdr_plugin.backbone import Backbone
-from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.dataset import SceneData
-from mono_hdr_plugin.methods import HdrMethod
+from mono_hdr_plugin.pipeline import Pipeline
 
 # Pixels whose LDR value lies in this range are neither clipped nor lost in noise: the display
 # scale is fitted on them.
@@ -24,55 +21,6 @@ WELL_EXPOSED = (0.05, 0.95)
 # Long side of the training views rendered to fit the display scale: a few thousand pixels suffice.
 CALIBRATION_SIZE = 48
 CALIBRATION_VIEWS = 3
-
-
-class RenderCancelled(Exception):
-    """A render was abandoned between two pixel chunks because its result is no longer wanted."""
-
-
-@dataclass
-class Frame:
-    """One rendered view, linear.
-
-    ldr: [H, W, 3] the method's LDR render at `exposure` (clamped to [0, 1]).
-    hdr: [H, W, 3] linear HDR radiance (the method's own scale).
-    depth: [H, W] the backbone's depth, None when it gives none.
-    alpha: [H, W] accumulated opacity (1: the ray hit something), None when the backbone gives none.
-    """
-
-    ldr: Tensor
-    hdr: Tensor
-    depth: Tensor | None
-    alpha: Tensor | None
-    exposure: float
-
-
-@torch.no_grad()
-def render_frame(backbone: Backbone, method: HdrMethod, camera: Camera, exposure: float,
-                 cancelled: Callable[[], bool] | None = None) -> Frame:
-    """Render a whole image in pieces of `backbone.render_chunk` rays; `cancelled` is asked
-    between pieces and a True answer raises RenderCancelled (the viewer's camera moved on)."""
-    chunks = [camera] if backbone.render_chunk is None else [
-        camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(backbone.render_chunk)]
-    ldr, hdr, depth, alpha = [], [], [], []
-    for chunk in chunks:
-        if cancelled is not None and cancelled():
-            raise RenderCancelled
-        features = backbone.render_ldr_features(chunk)
-        output = method(features, exposure)
-        ldr.append(output.ldr.reshape(-1, 3))
-        hdr.append(output.hdr.reshape(-1, 3))
-        # composited with the colours (3DGS leaves them in extras), so reading them costs no pass
-        for name, parts in (("depth", depth), ("alpha", alpha)):
-            value = features.extras.get(name)
-            parts.append(None if value is None else value.reshape(-1))
-    shape = (camera.height, camera.width)
-
-    def image(parts: list[Tensor | None]) -> Tensor | None:
-        return None if any(part is None for part in parts) else torch.cat(parts).reshape(shape)
-
-    return Frame(ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0), hdr=torch.cat(hdr).reshape(*shape, 3),
-                 depth=image(depth), alpha=image(alpha), exposure=exposure)
 
 
 @dataclass(frozen=True)
@@ -136,7 +84,7 @@ def fit_display_scale(ldr: Tensor, hdr: Tensor) -> float:
 
 
 @torch.no_grad()
-def calibrate(backbone: Backbone, method: HdrMethod, scene: SceneData) -> ExposureModel:
+def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
     """The ExposureModel of a model trained on `scene` (renders a few small training views)."""
     exposures = scene.train_exposures
     reference = reference_exposure(exposures)
@@ -145,25 +93,31 @@ def calibrate(backbone: Backbone, method: HdrMethod, scene: SceneData) -> Exposu
     ldr, hdr = [], []
     for view in chosen:
         factor = min(1.0, CALIBRATION_SIZE / max(view.camera.width, view.camera.height))
-        frame = render_frame(backbone, method, view.camera.scaled(factor), reference)
+        frame = pipeline.render(view.camera.scaled(factor), reference)
         ldr.append(frame.ldr.reshape(-1))
         hdr.append(frame.hdr.reshape(-1))
     return ExposureModel(reference_exposure=reference, display_scale=fit_display_scale(torch.cat(ldr), torch.cat(hdr)),
-                         renders_any_exposure=method.renders_any_exposure,
+                         renders_any_exposure=pipeline.renders_any_exposure,
                          ldr_exposures=tuple(exposures) if len(exposures) == 1 else ())
 
 
 @dataclass
 class LoadedModel:
-    """A trained model ready to render: backbone and method in eval mode, the scene it was trained
-    on (cameras, ground truth) and its exposure model."""
+    """A trained model ready to render: its pipeline in eval mode, the scene it was trained on
+    (cameras, ground truth) and its exposure model."""
 
-    backbone: Backbone
-    method: HdrMethod
+    pipeline: Pipeline
     scene: SceneData
-    backbone_name: str
     exposure: ExposureModel
     step: int
+
+    @property
+    def backbone(self):
+        return self.pipeline.backbone
+
+    @property
+    def method(self):
+        return self.pipeline.method
 
 
 def load_model(checkpoint: Path, scene: SceneData | None = None) -> LoadedModel:
@@ -172,6 +126,4 @@ def load_model(checkpoint: Path, scene: SceneData | None = None) -> LoadedModel:
 
     pipeline, scene, _, payload = load_pipeline(checkpoint, scene=scene)
     pipeline.eval()
-    return LoadedModel(backbone=pipeline.backbone, method=pipeline.method, scene=scene,
-                       backbone_name=pipeline.backbone_name, step=payload["step"],
-                       exposure=calibrate(pipeline.backbone, pipeline.method, scene))
+    return LoadedModel(pipeline=pipeline, scene=scene, step=payload["step"], exposure=calibrate(pipeline, scene))

@@ -9,7 +9,8 @@ benchmarks all go through it; a checkpoint holds its `state_dict()` (backbone.*,
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -22,6 +23,27 @@ from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, Targe
 from mono_hdr_plugin.registry import get_backbone
 
 OWNERS = ("backbone", "method", "exposures")
+
+
+class RenderCancelled(Exception):
+    """A render was abandoned between two pixel chunks because its result is no longer wanted."""
+
+
+@dataclass
+class Frame:
+    """One rendered view, linear.
+
+    ldr: [H, W, 3] the LDR render at `exposure` (clamped to [0, 1]).
+    hdr: [H, W, 3] linear HDR radiance (the method's own scale).
+    depth: [H, W] the backbone's depth, None when it gives none.
+    alpha: [H, W] accumulated opacity (1: the ray hit something), None when the backbone gives none.
+    """
+
+    ldr: torch.Tensor
+    hdr: torch.Tensor
+    depth: torch.Tensor | None
+    alpha: torch.Tensor | None
+    exposure: float
 
 
 class Pipeline(nn.Module):
@@ -117,20 +139,38 @@ class Pipeline(nn.Module):
         return [camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(self.backbone.render_chunk)]
 
     @torch.no_grad()
-    def render(self, camera: Camera, exposure: float) -> MethodOutput:
-        """A whole image at `exposure` seconds: ldr and hdr [H, W, 3]."""
-        parts = [self._lift(self.backbone.render_ldr_features(part), exposure, None, training=False)
-                 for part in self.camera_chunks(camera)]
-        shape = (camera.height, camera.width, 3)
-        return MethodOutput(ldr=torch.cat([p.ldr for p in parts]).reshape(shape),
-                            hdr=torch.cat([p.hdr for p in parts]).reshape(shape))
+    def render(self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None) -> Frame:
+        """A whole image at `exposure` seconds, in pieces of `backbone.render_chunk` rays.
+
+        `cancelled` is asked between pieces; a True answer raises RenderCancelled (the viewer's
+        camera moved on). Depth and opacity come with the colours where the backbone composites
+        them (3DGS leaves them in its extras), so reading them costs no extra pass.
+        """
+        ldr, hdr, depth, alpha = [], [], [], []
+        for part in self.camera_chunks(camera):
+            if cancelled is not None and cancelled():
+                raise RenderCancelled
+            features = self.backbone.render_ldr_features(part)
+            output = self._lift(features, exposure, None, training=False)
+            ldr.append(output.ldr.reshape(-1, 3))
+            hdr.append(output.hdr.reshape(-1, 3))
+            for name, pieces in (("depth", depth), ("alpha", alpha)):
+                value = features.extras.get(name)
+                pieces.append(None if value is None else value.reshape(-1))
+        shape = (camera.height, camera.width)
+
+        def image(pieces: list[torch.Tensor | None]) -> torch.Tensor | None:
+            return None if any(piece is None for piece in pieces) else torch.cat(pieces).reshape(shape)
+
+        return Frame(ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0), hdr=torch.cat(hdr).reshape(*shape, 3),
+                     depth=image(depth), alpha=image(alpha), exposure=exposure)
 
     @torch.no_grad()
-    def render_matching(self, camera: Camera, image: torch.Tensor) -> MethodOutput:
+    def render_matching(self, camera: Camera, image: torch.Tensor) -> Frame:
         """A whole image whose LDR is brightened to match the photo `image` [H, W, 3] as well as one
         exposure can: for views whose exposure is unknown (needs `exposures`)."""
         output = self.render(camera, float(self.exposures.reference_exposure))
-        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image))
+        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image)).clamp(0, 1)
         return output
 
     @contextlib.contextmanager

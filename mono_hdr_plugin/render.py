@@ -18,7 +18,8 @@ from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.evaluation import first_per_camera, save_hdr_renders
 from mono_hdr_plugin.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
-from mono_hdr_plugin.frames import Frame, LoadedModel, load_model, render_frame
+from mono_hdr_plugin.frames import LoadedModel, load_model
+from mono_hdr_plugin.pipeline import Frame
 from mono_hdr_plugin.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
 
 console = Console(stderr=True)
@@ -136,8 +137,8 @@ def display_frame(model: LoadedModel, camera: Camera, output: str, exposure: flo
         raise ValueError(f"unknown --output {output!r}; choose one of {', '.join(OUTPUTS)}")
     frame = cached
     if frame is None or (needs_render_at(output, model.exposure) and frame.exposure != exposure):
-        frame = render_frame(model.backbone, model.method, camera,
-                             exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure)
+        frame = model.pipeline.render(
+            camera, exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure)
     return frame, to_uint8(to_display(frame, output, exposure, model.exposure))
 
 
@@ -212,7 +213,7 @@ def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] 
     exposures = exposures or tuple(model.scene.train_exposures)
     written = []
     for view in first_per_camera(model.scene.test)[:max_views]:
-        frame = render_frame(model.backbone, model.method, view.camera, model.exposure.reference_exposure)
+        frame = model.pipeline.render(view.camera, model.exposure.reference_exposure)
         written += save_hdr_renders(out, view, frame.hdr)
         for exposure in exposures:
             frame, ldr = display_frame(model, view.camera, "ldr", exposure, cached=frame)

@@ -7,7 +7,7 @@ camera, resolution that drops while the camera moves, and saving the view as EXR
 Threads. viser runs its own event loop and calls our GUI callbacks from a thread pool; each
 connected browser gets one render thread (`_ClientLoop`). During training the model lives
 in the training thread, which must never wait for rendering, so the two share it through
-`ModelSnapshots`: the training thread, between two steps, deep-copies backbone and method
+`ModelSnapshots`: the training thread, between two steps, deep-copies the pipeline
 (a few MB, at most every `SnapshotPublisher.min_interval` seconds and only while a browser is
 connected) and swaps the copy in under a lock that guards nothing but that one reference.
 A published snapshot is never modified again, so render threads use it without any lock
@@ -28,16 +28,15 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from mono_hdr_plugin.backbone import Backbone
 from mono_hdr_plugin.camera_paths import ViewerCamera, camera_from_viewer, focus_point, scene_up, viewer_from_camera
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
 from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.display import OUTPUT_LABELS, colour_map, needs_render_at, to_display, to_uint8
-from mono_hdr_plugin.frames import ExposureModel, Frame, RenderCancelled, calibrate, load_model, render_frame
-from mono_hdr_plugin.methods import HdrMethod
+from mono_hdr_plugin.frames import ExposureModel, calibrate, load_model
 from mono_hdr_plugin.metrics import hdr_metrics, normalise_hdr, psnr
+from mono_hdr_plugin.pipeline import Frame, Pipeline, RenderCancelled
 from mono_hdr_plugin.train import TrainingHook
 from mono_hdr_plugin.validation import at_least, between
 
@@ -78,8 +77,7 @@ class ViewConfig:
 class Snapshot:
     """A model the viewer may render; never modified after it was published."""
 
-    backbone: Backbone
-    method: HdrMethod
+    pipeline: Pipeline
     step: int
     version: int
 
@@ -87,22 +85,21 @@ class Snapshot:
 class ModelSnapshots:
     """The latest published model, shared by the thread that owns it and the render threads."""
 
-    def __init__(self, backbone: Backbone, method: HdrMethod, step: int, copy_model: bool = True):
+    def __init__(self, pipeline: Pipeline, step: int, copy_model: bool = True):
         self._lock = threading.Lock()
         self._latest: Snapshot | None = None
-        self.publish(backbone, method, step, copy_model)
+        self.publish(pipeline, step, copy_model)
 
-    def publish(self, backbone: Backbone, method: HdrMethod, step: int, copy_model: bool = True) -> None:
+    def publish(self, pipeline: Pipeline, step: int, copy_model: bool = True) -> None:
         """Make (a frozen copy of) this model the one rendered from now on. With copy_model the
         caller may keep changing its own model: call it from the thread that changes it."""
         if copy_model:
-            backbone, method = copy.deepcopy(backbone), copy.deepcopy(method)
-            for module in (backbone, method):
-                module.eval()
-                module.requires_grad_(False)
+            pipeline = copy.deepcopy(pipeline)
+            pipeline.eval()
+            pipeline.requires_grad_(False)
         with self._lock:
             version = 0 if self._latest is None else self._latest.version + 1
-            self._latest = Snapshot(backbone, method, step, version)
+            self._latest = Snapshot(pipeline, step, version)
 
     def latest(self) -> Snapshot:
         with self._lock:
@@ -137,7 +134,7 @@ class SnapshotPublisher(TrainingHook):
         if not self.watched():
             return
         now = time.perf_counter()
-        self.snapshots.publish(trainer.backbone, trainer.method, trainer.step)
+        self.snapshots.publish(trainer.pipeline, trainer.step)
         copy_seconds = time.perf_counter() - now
         self.interval = max(self.min_interval, 20.0 * copy_seconds)
         self.published_at = time.perf_counter()
@@ -174,7 +171,7 @@ class ViewerRenderer:
         """The snapshot's exposure model, fitted once per snapshot."""
         with self._exposure_lock:
             if snapshot.version not in self._exposure_models:
-                self._exposure_models = {snapshot.version: calibrate(snapshot.backbone, snapshot.method, self.scene)}
+                self._exposure_models = {snapshot.version: calibrate(snapshot.pipeline, self.scene)}
             return self._exposure_models[snapshot.version]
 
     def camera(self, viewer_camera: ViewerCamera, height: int) -> Camera:
@@ -195,8 +192,7 @@ class ViewerRenderer:
         render_exposure = exposure if needs_render_at(output, model) else model.reference_exposure
         frame = cached
         if frame is None or frame.exposure != render_exposure or frame.hdr.shape[0] != height:
-            frame = render_frame(snapshot.backbone, snapshot.method, self.camera(viewer_camera, height),
-                                 render_exposure, cancelled)
+            frame = snapshot.pipeline.render(self.camera(viewer_camera, height), render_exposure, cancelled)
         note = "this backbone renders no depth" if output == "depth" and frame.depth is None else ""
         return ViewerImage(to_uint8(to_display(frame, output, exposure, model)), frame, note)
 
@@ -221,12 +217,12 @@ class ViewerRenderer:
             return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
                                f"{view.stem} has no HDR ground truth: choose the LDR error")
         if output == "error-hdr":
-            frame = render_frame(snapshot.backbone, snapshot.method, view.camera, model.reference_exposure)
+            frame = snapshot.pipeline.render(view.camera, model.reference_exposure)
             error = (normalise_hdr(frame.hdr) - normalise_hdr(view.hdr)).abs().mean(-1)
             note = f"{view.stem}: HDR PSNR {hdr_metrics(frame.hdr, view.hdr)['hdr_psnr']:.2f} dB (mu-law, own max)"
         else:
             render_exposure = view.exposure if model.renders_any_exposure else model.reference_exposure
-            frame = render_frame(snapshot.backbone, snapshot.method, view.camera, render_exposure)
+            frame = snapshot.pipeline.render(view.camera, render_exposure)
             ldr = to_display(frame, "ldr", view.exposure, model)
             error = (ldr - view.image).abs().mean(-1)
             note = f"{view.stem} at {view.exposure:g} s: LDR PSNR {psnr(ldr, view.image):.2f} dB"
@@ -535,7 +531,7 @@ def wait_for_interrupt() -> None:
 
 def view_command(config: ViewConfig) -> None:
     model = load_model(config.checkpoint)
-    snapshots = ModelSnapshots(model.backbone, model.method, model.step, copy_model=False)
+    snapshots = ModelSnapshots(model.pipeline, model.step, copy_model=False)
     viewer = Viewer(ViewerRenderer(snapshots, model.scene), host=config.host, port=config.port, out=config.out,
                     max_resolution=config.max_resolution)
     console.print(f"[bold]viewer of {config.checkpoint} (step {model.step}) at {viewer.url}[/bold]  (Ctrl+C to stop)")
@@ -550,13 +546,13 @@ def train_with_viewer(trainer, report: Callable[[dict], None]) -> dict:
     """Train while a viewer shows the model (training never waits for it); after training the
     viewer stays open on the final model until Ctrl+C. `report` receives the metrics first."""
     config = trainer.config
-    snapshots = ModelSnapshots(trainer.backbone, trainer.method, trainer.step)
+    snapshots = ModelSnapshots(trainer.pipeline, trainer.step)
     viewer = Viewer(ViewerRenderer(snapshots, trainer.scene), host=config.viewer_host, port=config.viewer_port,
                     out=config.out / "viewer", training=True)
     console.print(f"[bold]viewer at {viewer.url}[/bold]")
     try:
         metrics = trainer.train(extra_hooks=[SnapshotPublisher(snapshots, viewer.has_clients, viewer.training_step)])
-        snapshots.publish(trainer.backbone, trainer.method, trainer.step)
+        snapshots.publish(trainer.pipeline, trainer.step)
         viewer.training_step(trainer.step)
         report(metrics)
         console.print(f"[bold]training done; the viewer stays at {viewer.url}[/bold]  (Ctrl+C to stop)")

@@ -16,10 +16,9 @@ def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: st
     config.hdr.method = method
     trainer = Trainer(config, backbone_name, scene)
     trainer.train()
-    trainer.backbone.eval()
-    trainer.method.eval()
-    model = LoadedModel(backbone=trainer.backbone, method=trainer.method, scene=scene, backbone_name=backbone_name,
-                        exposure=calibrate(trainer.backbone, trainer.method, scene), step=trainer.step)
+    trainer.pipeline.eval()
+    model = LoadedModel(pipeline=trainer.pipeline, scene=scene, exposure=calibrate(trainer.pipeline, scene),
+                        step=trainer.step)
     return trainer, model
 
 

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from mono_hdr_plugin.display import aces_filmic, colour_depth, exposed_hdr, needs_render_at, to_display
-from mono_hdr_plugin.frames import ExposureModel, Frame, fit_display_scale, reference_exposure, srgb_decode, srgb_encode
+from mono_hdr_plugin.frames import ExposureModel, fit_display_scale, reference_exposure, srgb_decode, srgb_encode
+from mono_hdr_plugin.pipeline import Frame
 from mono_hdr_plugin.metrics import normalise_hdr
 
 MONO = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=False, ldr_exposures=(2.0,))

@@ -15,7 +15,7 @@ from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.cli import main
 from mono_hdr_plugin.export import (converters_paths, export_splats, load_converters, load_point_cloud, point_cloud,
                                     points_from_depth, write_point_cloud)
-from mono_hdr_plugin.frames import render_frame
+from mono_hdr_plugin.pipeline import Pipeline
 
 # The vertex properties of a degree-3 3DGS PLY, in the order the reference implementation writes them.
 STANDARD_3DGS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
@@ -41,8 +41,8 @@ class TestSplatExport:
         loaded.active_sh_degree = loaded.config.sh_degree  # a PLY holds every SH band; viewers evaluate them all
         method = load_converters(path)
         for view in voxel_scene.test:
-            original = render_frame(gaussians.backbone, gaussians.method, view.camera, 0.5)
-            again = render_frame(loaded.eval(), method, view.camera, 0.5)
+            original = gaussians.pipeline.render(view.camera, 0.5)
+            again = Pipeline("gs", loaded.eval(), method).render(view.camera, 0.5)
             torch.testing.assert_close(again.hdr, original.hdr, rtol=1e-5, atol=1e-6)
             torch.testing.assert_close(again.ldr, original.ldr, rtol=1e-5, atol=1e-6)
 

@@ -10,7 +10,6 @@ from mono_hdr_plugin.camera_paths import camera_path
 from mono_hdr_plugin.cli import main
 from mono_hdr_plugin.data.io import read_exr, read_image
 from mono_hdr_plugin.render import even_sized, render_exposure_sweep, render_path
-from mono_hdr_plugin.pipeline import Pipeline
 
 
 def video_frames(path) -> list[np.ndarray]:
@@ -26,7 +25,7 @@ class TestPathVideo:
         assert len(frames) == 7 and all(f.shape == (16, 16, 3) for f in frames)
         exrs = sorted((tmp_path / "exr").glob("frame_*_hdr.exr"))
         assert [p.name for p in exrs] == [f"frame_{i:05d}_hdr.exr" for i in range(7)]
-        expected = Pipeline("voxel-grid", voxel_mono.backbone, voxel_mono.method).render(cameras[3], 0.5).hdr
+        expected = voxel_mono.pipeline.render(cameras[3], 0.5).hdr
         np.testing.assert_allclose(read_exr(exrs[3]), expected.numpy(), rtol=1e-6, atol=1e-7)
         assert not list(tmp_path.glob(".*tmp*"))  # written atomically: no temporary left
 
@@ -54,7 +53,7 @@ class TestExposureSweep:
     def test_camera_response_sweep_renders_each_exposure(self, voxel_crf, tmp_path):
         camera = voxel_crf.scene.test[0].camera
         images = render_exposure_sweep(voxel_crf, camera, [-1.0, 1.0], tmp_path / "s.mp4", tmp_path / "s.png")
-        expected = Pipeline("voxel-grid", voxel_crf.backbone, voxel_crf.method).render(camera, 0.5 * 2.0).ldr.clamp(0, 1)
+        expected = voxel_crf.pipeline.render(camera, 0.5 * 2.0).ldr.clamp(0, 1)
         assert np.abs(images[1].astype(int) - np.round(expected.numpy() * 255).astype(int)).max() <= 1
 
 

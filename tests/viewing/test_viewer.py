@@ -8,9 +8,9 @@ import torch
 from conftest import train_model
 from mono_hdr_plugin.camera_paths import ViewerCamera, viewer_from_camera
 from mono_hdr_plugin.display import to_uint8
-from mono_hdr_plugin.frames import RenderCancelled, render_frame, srgb_encode
+from mono_hdr_plugin.frames import srgb_encode
 from mono_hdr_plugin.metrics import hdr_metrics
-from mono_hdr_plugin.pipeline import Pipeline
+from mono_hdr_plugin.pipeline import RenderCancelled
 from mono_hdr_plugin.viewer import ModelSnapshots, SnapshotPublisher, Viewer, ViewerRenderer, letterbox
 
 # A browser camera: 10 degrees above the rig's plane, a wide 4:3 canvas.
@@ -25,11 +25,11 @@ def browser_camera(scene) -> ViewerCamera:
 
 def reference(model, camera, exposure):
     """The pipeline's own whole-image render, independent of the viewer's code."""
-    return Pipeline(model.backbone_name, model.backbone, model.method).render(camera, exposure)
+    return model.pipeline.render(camera, exposure)
 
 
 def renderer_of(model) -> ViewerRenderer:
-    return ViewerRenderer(ModelSnapshots(model.backbone, model.method, model.step, copy_model=False), model.scene)
+    return ViewerRenderer(ModelSnapshots(model.pipeline, model.step, copy_model=False), model.scene)
 
 
 class TestRenderFunction:
@@ -98,25 +98,24 @@ class TestRenderFunction:
 
     def test_a_moving_camera_cancels_the_render(self, voxel_mono):
         with pytest.raises(RenderCancelled):
-            render_frame(voxel_mono.backbone, voxel_mono.method, voxel_mono.scene.test[0].camera, 0.5,
-                         cancelled=lambda: True)
+            voxel_mono.pipeline.render(voxel_mono.scene.test[0].camera, 0.5, cancelled=lambda: True)
 
 
 class TestSnapshots:
     def test_a_snapshot_does_not_change_with_the_live_model(self, voxel_mono):
-        backbone, method = voxel_mono.backbone, voxel_mono.method
-        snapshots = ModelSnapshots(backbone, method, step=3)
+        pipeline, backbone = voxel_mono.pipeline, voxel_mono.backbone
+        snapshots = ModelSnapshots(pipeline, step=3)
         camera = voxel_mono.scene.test[0].camera
-        before = render_frame(snapshots.latest().backbone, snapshots.latest().method, camera, 0.5).hdr
+        before = snapshots.latest().pipeline.render(camera, 0.5).hdr
         saved = backbone.color_logits.detach().clone()
         with torch.no_grad():
             backbone.color_logits.add_(1.0)
         try:
-            after = render_frame(snapshots.latest().backbone, snapshots.latest().method, camera, 0.5).hdr
+            after = snapshots.latest().pipeline.render(camera, 0.5).hdr
             assert torch.equal(before, after)
-            snapshots.publish(backbone, method, step=4)
+            snapshots.publish(pipeline, step=4)
             assert snapshots.latest().version == 1 and snapshots.latest().step == 4
-            assert not torch.equal(render_frame(snapshots.latest().backbone, snapshots.latest().method, camera, 0.5).hdr,
+            assert not torch.equal(snapshots.latest().pipeline.render(camera, 0.5).hdr,
                                    before)
         finally:
             with torch.no_grad():
@@ -129,20 +128,20 @@ class TestSnapshots:
 
         watched = Trainer(plain.config, "voxel-grid", voxel_scene)
         watched.config.out = tmp_path / "watched"
-        snapshots = ModelSnapshots(watched.backbone, watched.method, 0)
+        snapshots = ModelSnapshots(watched.pipeline, 0)
         published = []
         watched.train(extra_hooks=[SnapshotPublisher(snapshots, lambda: True, published.append, min_interval=0.0)])
         assert published[-1] == 6 and snapshots.latest().step == 6
         for name, value in plain.backbone.state_dict().items():
             torch.testing.assert_close(watched.backbone.state_dict()[name], value, rtol=0, atol=0)
-        torch.testing.assert_close(snapshots.latest().backbone.color_logits, watched.backbone.color_logits)
+        torch.testing.assert_close(snapshots.latest().pipeline.backbone.color_logits, watched.backbone.color_logits)
 
     def test_nobody_watching_costs_no_copy(self, voxel_mono):
-        snapshots = ModelSnapshots(voxel_mono.backbone, voxel_mono.method, 0)
+        snapshots = ModelSnapshots(voxel_mono.pipeline, 0)
         publisher = SnapshotPublisher(snapshots, lambda: False, lambda step: None, min_interval=0.0)
 
         class Step:
-            backbone, method, step = voxel_mono.backbone, voxel_mono.method, 9
+            pipeline, step = voxel_mono.pipeline, 9
 
         publisher.after_step(Step(), {})
         assert snapshots.latest().version == 0
