@@ -118,3 +118,8 @@ class Backbone(torch.nn.Module):
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """Per-group learning rate at `step`; override for schedules (3DGS position decay)."""
         return base_lr
+
+    def regularisation(self) -> dict[str, Tensor]:
+        """Named loss terms on the backbone's own parameters, added to the method's losses each
+        training step (3DGS-MCMC: opacity and scale regularisers)."""
+        return {}

@@ -145,7 +145,7 @@ class Trainer:
         groups = self.backbone.parameter_groups() + self.method.parameter_groups()
         for group in groups:
             group["base_lr"] = group["lr"]
-        self.optimizer = torch.optim.Adam(groups, eps=1e-15)
+        self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
         self.view_order: list[int] = []
         self.step = 0
@@ -213,7 +213,7 @@ class Trainer:
         self._set_learning_rates()
         features = self.backbone.render_ldr_features(camera)
         output = self.method.render(features, targets.exposure)
-        terms = self.method.losses(output, targets, self.step)
+        terms = {**self.method.losses(output, targets, self.step), **self.backbone.regularisation()}
         loss = torch.stack(list(terms.values())).sum()
         loss.backward()
         bad = self._bad_tensors(loss)

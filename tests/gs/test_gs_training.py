@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from backbones.gs import GaussianConfig
+from backbones.gs import DefaultStrategy, GaussianConfig
 from mono_hdr_plugin.checkpoints import load_checkpoint
 from mono_hdr_plugin.methods import METHODS
 from mono_hdr_plugin.train import Trainer, train_config_for
@@ -40,8 +40,8 @@ class TestTwoStepsOfEveryMethod:
 class TestResumeAcrossDensification:
     def test_checkpoint_after_densify_restores_same_next_loss(self, tmp_path, voxel_scene):
         # max_steps = 30k keeps the schedule unscaled: refine at steps 2 and 4
-        overrides = dict(refine_start=2, refine_every=2, min_refine_every=1, grad_threshold=0.0,
-                         reset_opacity_every=10**6)
+        overrides = dict(strategy=DefaultStrategy(refine_start=2, refine_every=2, min_refine_every=1,
+                                                  grad_threshold=0.0, reset_opacity_every=10**6))
         trainer = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, **overrides)
         for _ in range(5):
             trainer.train_step()
