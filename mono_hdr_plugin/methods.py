@@ -136,7 +136,8 @@ class MonoHDR(HdrMethod):
         hdr_colors = self.l2h(features.colors)
         image = features.composite(torch.cat([features.colors, hdr_colors], dim=-1))
         ldr, hdr = image[..., :3], image[..., 3:]
-        ldr_from_hdr = self.h2l(normalise_hdr(hdr)) if self.h2l is not None else None
+        # H2L-CC serves the loss only: a render (eval mode) skips it
+        ldr_from_hdr = self.h2l(normalise_hdr(hdr)) if self.h2l is not None and self.training else None
         return MethodOutput(ldr=ldr, hdr=hdr, ldr_from_hdr=ldr_from_hdr)
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:
