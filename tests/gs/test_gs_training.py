@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from backbones.gs import DefaultStrategy, GaussianConfig
+from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig
 from mono_hdr_plugin.checkpoints import load_checkpoint
 from mono_hdr_plugin.methods import METHODS
 from mono_hdr_plugin.train import Trainer, train_config_for
@@ -69,3 +69,70 @@ class TestShortStudioRun:
         after = trainer.train()
         assert after["hdr_psnr"] > before["hdr_psnr"] + 2.0
         assert after["ldr_psnr"] > before["ldr_psnr"] + 2.0
+
+
+class SlowingClock:
+    """perf_counter for the trainer (read twice a step): each step takes `first` seconds plus
+    `growth` more than the one before, as steps slow down while Gaussians are added."""
+
+    def __init__(self, first: float, growth: float):
+        self.now, self.calls, self.first, self.growth = 0.0, 0, first, growth
+
+    def perf_counter(self) -> float:
+        self.calls += 1
+        if self.calls % 2 == 0:  # the end of a step
+            self.now += self.first + self.growth * (self.calls // 2 - 1)
+        return self.now
+
+
+class TestTimeBudget:
+    """--max-seconds with the 3DGS backbone: stops on time, re-scales its schedules as the step
+    time changes, keeps every learned state, and resumes where it stopped."""
+
+    @pytest.fixture
+    def slowing_clock(self, monkeypatch):
+        import mono_hdr_plugin.train as train_module
+
+        clock = SlowingClock(first=0.1, growth=0.004)
+        monkeypatch.setattr(train_module.time, "perf_counter", clock.perf_counter)
+        return clock
+
+    def budget_trainer(self, tmp_path, scene, seconds: float) -> Trainer:
+        backbone = GaussianBackbone.presets()["cpu"]
+        config = train_config_for(GaussianConfig)(backbone=backbone, out=tmp_path / "run", quiet=True,
+                                                  save_renders=False, checkpoint_every=10**9, max_steps=100_000,
+                                                  max_seconds=seconds, max_eval_views=1)
+        return Trainer(config, "gs", scene)
+
+    def test_stops_on_time_and_rescales_every_estimate(self, tmp_path, voxel_scene, slowing_clock, monkeypatch):
+        trainer = self.budget_trainer(tmp_path, voxel_scene, seconds=12.0)
+        lengths, degrees = [], []
+        original = trainer.backbone.set_run_length
+        monkeypatch.setattr(trainer.backbone, "set_run_length", lambda n: (lengths.append(n), original(n)))
+        while not trainer.finished:
+            trainer.train_step()
+            degrees.append(trainer.backbone.active_sh_degree)
+            assert trainer.backbone.num_gaussians <= trainer.backbone.budget
+        assert trainer.train_seconds >= 12.0 > trainer.train_seconds - (0.1 + 0.004 * (trainer.step - 1))
+        assert len(lengths) >= 3, "slowing steps must move the estimate more than once"
+        assert lengths == sorted(lengths, reverse=True), "each estimate is shorter than the last"
+        assert trainer.backbone.max_steps == trainer.run_length == lengths[-1]
+        assert abs(trainer.run_length - trainer.step) <= 0.1 * trainer.step, "the last estimate is close to the end"
+        assert degrees == sorted(degrees) and degrees[-1] == 3, "the SH ramp never goes back and completes"
+
+    def test_resume_keeps_budget_schedule_and_strategy_state(self, tmp_path, voxel_scene, slowing_clock):
+        trainer = self.budget_trainer(tmp_path, voxel_scene, seconds=12.0)
+        for _ in range(40):
+            trainer.train_step()
+        trainer.save()
+        saved = {"run_length": trainer.run_length, "degree": trainer.backbone.active_sh_degree,
+                 "count": trainer.backbone.num_gaussians, "seconds": trainer.train_seconds}
+        resumed = self.budget_trainer(tmp_path, voxel_scene, seconds=12.0)
+        resumed.restore(load_checkpoint(trainer.checkpoint_path()))
+        assert resumed.backbone.max_steps == resumed.run_length == saved["run_length"]
+        assert resumed.backbone.active_sh_degree == saved["degree"]
+        assert resumed.backbone.num_gaussians == saved["count"]
+        assert resumed.train_seconds == pytest.approx(saved["seconds"])
+        while not resumed.finished:
+            resumed.train_step()
+        assert resumed.train_seconds >= 12.0 and resumed.step > 40
