@@ -159,12 +159,22 @@ def lamp(centre, radius: float, radiance: tuple[float, float, float]) -> dict:
             "emitter": {"type": "area", "radiance": rgb(*radiance)}}
 
 
-def projector(origin, target, up, fov_deg: float, irradiance: tuple[float, float, float]) -> dict:
-    """A point light that throws a sharp-edged rectangle of uniform light (a sun patch through a
-    window): Mitsuba's projector with a constant image."""
+def projector(origin, target, up, fov_deg: float, irradiance: tuple[float, float, float],
+              aspect: float = 1.0, soft_edge: float = 0.0) -> dict:
+    """A point light that throws a rectangle of uniform light (a sun patch through a window):
+    Mitsuba's projector with a constant image of width / height `aspect`. `soft_edge` (a
+    fraction of the width) fades the border smoothly, as the sun's disc does; a hard edge
+    between a light this bright and the dark floor stays noisy at any sample count."""
+    width = 64
+    height = max(2, round(width / aspect))
+    image = np.ones((height, width), np.float32)
+    if soft_edge > 0:
+        ramp = lambda n: np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / (soft_edge * width), 0, 1)
+        image = np.outer(ramp(height), ramp(width))
+        image = image * image * (3 - 2 * image)  # smoothstep: no kink where the fade starts
     return {"type": "projector", "fov": fov_deg, "scale": 1.0,
-            "irradiance": {"type": "bitmap", "filter_type": "nearest",
-                           "bitmap": np.ones((2, 2, 3), np.float32) * np.asarray(irradiance, np.float32)},
+            "irradiance": {"type": "bitmap", "filter_type": "bilinear",
+                           "bitmap": image[..., None] * np.asarray(irradiance, np.float32)},
             "to_world": look_at_matrix(origin, target, up)}
 
 

@@ -3,8 +3,8 @@
 import numpy as np
 
 from mono_hdr_plugin.studio.capture import CaptureSettings
-from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, checker, diffuse, lamp, panel, place,
-                                          projector, rgb, rotate, scale, translate)
+from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, checker, diffuse, lamp, look_at_matrix, panel,
+                                          place, projector, rgb, rotate, scale, translate)
 
 
 WINDOW = (-0.7, 0.7, 0.9, 1.9)
@@ -74,9 +74,10 @@ def sunlit_window_content() -> dict:
 
     Every light is a point source, which a path tracer samples exactly: the sun patch comes from
     a projector just inside the window aimed along the sun's direction, the sky's light from a
-    wider, dimmer blue projector beside it, and the sky seen through the window is a white board
-    outside lit by a lamp of its own (the walls hide that lamp from the room). A large emitting
-    panel in the window would light the room the same way but take ~100x the samples to converge.
+    wider, dimmer blue projector beside it (both with soft edges, as the sun's disc gives), and
+    the sky seen through the window is a white board outside lit by a spot that faces away from
+    the room. A large emitting panel in the window would light the room the same way but take
+    ~100x the samples to converge.
     """
     x0, x1, z0, z1 = WINDOW
     middle = np.array([(x0 + x1) / 2, 1.98, (z0 + z1) / 2])
@@ -87,13 +88,14 @@ def sunlit_window_content() -> dict:
         "armchair": box((1.0, 0.2, 0.3), (0.7, 0.7, 0.6), diffuse(checker(rgb(0.5, 0.1, 0.1), rgb(0.1), 3))),
         "rug": panel(place(translate(-0.2, 0.4, 0.005), scale(0.8, 0.6, 1)),
                      diffuse(checker(rgb(0.1, 0.3, 0.35), rgb(0.6, 0.55, 0.3), 5))),
-        "sky": panel(place(translate(0, 2.6, 0), rotate("x", 90), translate((x0 + x1) / 2, (z0 + z1) / 2, 0),
-                           scale(2.5, 2.0, 1)), diffuse(rgb(0.8))),
-        "sky_light": {"type": "point", "position": [0.0, 2.1, (z0 + z1) / 2],
-                      "intensity": rgb(60.0, 72.0, 92.0)},
-        "sun": projector(middle, middle + sun, (0.0, 0.0, 1.0), 24.0, (4000.0, 3800.0, 3300.0)),
+        "sky": panel(place(translate(0, 3.2, 0), rotate("x", 90), translate((x0 + x1) / 2, (z0 + z1) / 2, 0),
+                           scale(3.0, 2.5, 1)), diffuse(rgb(0.8))),
+        "sky_light": {"type": "spot", "cutoff_angle": 70.0, "beam_width": 45.0, "intensity": rgb(150.0, 180.0, 230.0),
+                      "to_world": look_at_matrix(middle + [0, 0.07, 0], middle + [0, 1.0, 0], (0.0, 0.0, 1.0))},
+        "sun": projector(middle, middle + sun, (0.0, 0.0, 1.0), 24.0, (4000.0, 3800.0, 3300.0),
+                         aspect=(x1 - x0) / (z1 - z0), soft_edge=0.12),
         "skylight": projector(middle, middle + np.array([0.0, -1.0, -0.6]), (0.0, 0.0, 1.0), 100.0,
-                              (15.0, 18.0, 23.0)),
+                              (15.0, 18.0, 23.0), soft_edge=0.25),
     }
 
 

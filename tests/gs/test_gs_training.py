@@ -55,20 +55,50 @@ class TestResumeAcrossDensification:
         assert resumed.train_step()["loss"] == pytest.approx(expected, rel=1e-5)
 
 
+def hot_chromaticity(hdr: torch.Tensor, hot: torch.Tensor) -> torch.Tensor:
+    """Mean r, g, b chromaticity (each channel over their sum) of the pixels `hot` [H, W] of `hdr` [H, W, 3]."""
+    colours = hdr[hot]
+    return (colours / colours.sum(-1, keepdim=True).clamp_min(1e-12)).mean(0)
+
+
+def studio_trainer(tmp_path, preset: str, steps: int) -> Trainer:
+    from mono_hdr_plugin.data.config import DataConfig
+    from mono_hdr_plugin.data.loading import load_scene
+
+    scene = load_scene(DataConfig(scene="demo"))
+    backbone = GaussianBackbone.presets()[preset]
+    config = train_config_for(GaussianConfig)(backbone=backbone, preset=preset, out=tmp_path / preset, quiet=True,
+                                              save_renders=False, checkpoint_every=10**9, max_steps=steps,
+                                              max_eval_views=4)
+    return Trainer(config, "gs", scene)
+
+
 @pytest.mark.slow
 class TestShortStudioRun:
-    def test_hdr_psnr_rises_on_default_scene(self, tmp_path):
-        from mono_hdr_plugin.data.config import DataConfig
-        from mono_hdr_plugin.data.loading import load_scene
+    def test_cpu_recipe_beats_the_official_one_in_the_same_steps(self, tmp_path):
+        """300 steps on the 128 px demo: the cpu preset passes 28 dB HDR PSNR, the official 30k-step
+        recipe scaled to 300 steps does not (benchmarks/results/gs_cpu_sweep holds the curves)."""
+        cpu = studio_trainer(tmp_path, "cpu", 300)
+        before = cpu.evaluate()
+        after = cpu.train()
+        paper = studio_trainer(tmp_path, "paper", 300).train()
+        assert after["hdr_psnr"] > 28.0 > paper["hdr_psnr"]
+        assert after["ldr_psnr"] > before["ldr_psnr"] + 10.0
 
-        scene = load_scene(DataConfig(scene="demo"))
-        config = train_config_for(GaussianConfig)(out=tmp_path / "run", quiet=True, save_renders=False,
-                                                  checkpoint_every=10**9, max_steps=300, max_eval_views=4)
-        trainer = Trainer(config, "gs", scene)
-        before = trainer.evaluate()
-        after = trainer.train()
-        assert after["hdr_psnr"] > before["hdr_psnr"] + 2.0
-        assert after["ldr_psnr"] > before["ldr_psnr"] + 2.0
+    def test_hottest_pixels_keep_their_hue(self, tmp_path):
+        """The demo's bulb is white (warm) in the ground truth: its HDR render must not turn blue.
+        Tolerance: 0.25 in summed |chromaticity| (a clipped-white bulb rendered cyan was 0.53)."""
+        trainer = studio_trainer(tmp_path, "cpu", 800)
+        trainer.train()
+        trainer.backbone.eval()
+        trainer.method.eval()
+        with torch.no_grad():
+            for view in trainer.scene.test[:4]:
+                hdr = trainer.method(trainer.backbone.render_ldr_features(view.camera), view.exposure).hdr
+                luminance = view.hdr @ torch.tensor([0.2126, 0.7152, 0.0722])
+                hot = luminance >= torch.quantile(luminance.flatten(), 0.995)
+                error = (hot_chromaticity(hdr, hot) - hot_chromaticity(view.hdr, hot)).abs().sum()
+                assert error < 0.25, f"view {view.stem}: hottest pixels shifted by {error:.2f} in chromaticity"
 
 
 class SlowingClock:
