@@ -30,6 +30,8 @@ test: install
 	$(BIN)/python -m pytest -q
 
 test-slow: install
+	# the slow suite also runs the benchmarks on Ray (the optional `distributed` extra)
+	$(BIN)/pip install --quiet -e '.[test,distributed]'
 	$(BIN)/python -m pytest -q -m slow
 
 clean:

@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from backbones.gs import GaussianBackbone
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.train import Trainer, train_config_for

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from backbones.gs import GaussianBackbone
+from backbones.gs import GAUSSIAN_PARAMETERS, GaussianBackbone
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.data.config import DataConfig
@@ -47,7 +47,7 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
     backbone, method = trainer.backbone, trainer.method
     view = scene.train[0]
     camera, target = view.camera, view.image
-    g = {name: getattr(backbone, name) for name in ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")}
+    g = {name: getattr(backbone, name) for name in GAUSSIAN_PARAMETERS}
 
     def zero():
         for value in list(g.values()) + list(method.parameters()):

@@ -5,6 +5,6 @@
 set -euo pipefail
 export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=17179869184
 out=${1:-benchmarks/results}
-mono-hdr bench paper --out "$out" --gs-steps 500 --nerf-steps 500 --exposure-indices 1
+mono-hdr bench paper --out "$out" --steps 500 --exposure-indices 1
 mono-hdr bench raster --out "$out" --repeats 3
 mono-hdr bench curves --out "$out" --budget-seconds 150 --eval-points 5 --max-eval-views 8

@@ -7,21 +7,15 @@ then print and plot how HDR quality grew with training time for each.
 import argparse
 from pathlib import Path
 
-from mono_hdr_plugin.bench import RunSpec, SceneCache, build_run, estimate_steps, render_fps, train_for
+from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, run_row
 
 
 def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ...] = ("nerf", "gs"),
             method: str = "mono", eval_points: int = 4, max_eval_views: int | None = 4) -> list[dict]:
-    """One run per backbone, same scene, same budget; returns [{backbone, curve, fps...}]."""
-    scenes, results = SceneCache(), []
-    for backbone in backbones:
-        spec = RunSpec(backbone=backbone, method=method, preset="fast" if backbone == "nerf" else None, scene=scene_name)
-        trainer = build_run(spec, scenes.get(scene_name, spec.exposure_index), 10**9, out / backbone, max_eval_views)
-        trainer.backbone.set_run_length(estimate_steps(trainer, seconds))
-        curve = train_for(trainer, seconds, eval_points)
-        fps_ldr, fps_ldr_hdr = render_fps(trainer)
-        results.append({"backbone": backbone, "curve": curve, "fps_ldr": fps_ldr, "fps_ldr_hdr": fps_ldr_hdr})
-    return results
+    """One run per backbone (its default preset), same scene, same budget: the benchmark's rows."""
+    budget = RunBudget(seconds=seconds, eval_points=eval_points, max_eval_views=max_eval_views)
+    return [run_row(RunSpec(backbone=backbone, method=method, scene=scene_name), budget, str(out / backbone))
+            for backbone in backbones]
 
 
 def plot(results: list[dict], path: Path) -> None:
@@ -33,7 +27,7 @@ def plot(results: list[dict], path: Path) -> None:
     figure, axis = plt.subplots(figsize=(6, 4))
     for run in results:
         axis.plot([p["train_seconds"] for p in run["curve"]], [p["hdr_psnr"] for p in run["curve"]], marker="o",
-                  label=run["backbone"])
+                  label=run["spec"]["backbone"])
     axis.set_xlabel("training seconds")
     axis.set_ylabel("HDR mu-law PSNR (dB)")
     axis.grid(alpha=0.3)
@@ -53,9 +47,9 @@ def main() -> None:
     results = compare(args.scene, args.seconds, args.out, method=args.method)
     print(f"{'backbone':<8} {'steps':>6} {'seconds':>8} {'HDR PSNR':>9} {'LDR PSNR':>9} {'fps LDR':>8} {'fps LDR+HDR':>12}")
     for run in results:
-        final = run["curve"][-1]
-        print(f"{run['backbone']:<8} {final['steps']:>6} {final['train_seconds']:>8.1f} {final['hdr_psnr']:>9.2f} "
-              f"{final['ldr_psnr']:>9.2f} {run['fps_ldr']:>8.2f} {run['fps_ldr_hdr']:>12.2f}")
+        final = run["final"]
+        print(f"{run['spec']['backbone']:<8} {final['steps']:>6} {final['train_seconds']:>8.1f} "
+              f"{final['hdr_psnr']:>9.2f} {final['ldr_psnr']:>9.2f} {run['fps_ldr']:>8.2f} {run['fps_ldr_hdr']:>12.2f}")
     plot(results, args.out / "compare_backbones.png")
     print(f"plot written to {args.out / 'compare_backbones.png'}")
 

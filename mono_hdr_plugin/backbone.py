@@ -23,7 +23,9 @@ class LdrFeatures:
         baseline methods read them as log radiance, as HDR-NeRF and HDR-GS do.
     composite: values [..., P, C] -> image [*camera.output_shape, C], with the backbone's
         weights (alpha blending, volume-rendering weights); any C, one pass.
-    extras: backbone outputs the wrapper passes through (depth, alpha, 2D means, ...).
+    extras: backbone outputs the wrapper passes through: "depth" and "alpha" [*output_shape]
+        where they come with the colours (NeRF), "render_depth" (a function returning depth)
+        where depth costs an extra pass (3DGS), 2D means, ...
     auxiliary: further renders supervised with the LDR loss only (NeRF's coarse network).
     """
 
@@ -52,12 +54,14 @@ class SceneInfo:
     def extent(self) -> float:
         """Radius of the camera rig, as 3DGS uses for its densification thresholds.
 
-        A single camera (or cameras at one spot) has no rig: half the scene diagonal stands in.
+        No camera, a single camera or cameras at one spot have no rig: half the scene diagonal
+        stands in.
         """
-        centers = torch.stack([c.center.float() for c in self.train_cameras])
-        rig = float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
-        if rig > 1e-6:
-            return rig
+        if self.train_cameras:
+            centers = torch.stack([c.center.float() for c in self.train_cameras])
+            rig = float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
+            if rig > 1e-6:
+                return rig
         return max(0.5 * float((self.bounds_max - self.bounds_min).float().norm()), 1e-3)
 
 
@@ -69,6 +73,8 @@ class Backbone(torch.nn.Module):
         loss_kind: "l1_dssim" (3DGS photometric loss) or "mse" (NeRF), the method's default.
         pixel_batch: None to train on whole images, or the number of rays per step.
         render_chunk: None to render whole images in one call, or the most rays per call.
+        paper_backbone: which of the paper's backbones this one reproduces, "NeRF" or "3DGS";
+            `mono-hdr bench` compares it with the paper's figures of that row (None: no row).
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
@@ -79,6 +85,7 @@ class Backbone(torch.nn.Module):
 
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
+    paper_backbone: ClassVar[str | None] = None
     pixel_batch: ClassVar[int | None] = None
     render_chunk: ClassVar[int | None] = None
 
@@ -88,9 +95,24 @@ class Backbone(torch.nn.Module):
         self.max_steps = 30_000
 
     @classmethod
+    def benchmarks(cls) -> dict[str, tuple[type, Callable[[Any], Any]]]:
+        """Benchmarks this backbone adds to `mono-hdr bench`: name -> (config dataclass, function)."""
+        return {}
+
+    @classmethod
+    def tuning_space(cls) -> dict[str, tuple]:
+        """What `mono-hdr bench paper`'s recipe table tunes for every method alike: a field path of
+        this backbone's config -> candidate values (each method gets the same grid)."""
+        return {}
+
+    @classmethod
     def presets(cls) -> dict[str, Any]:
         """Named configurations of this backbone (`--preset NAME`); the first one is the default."""
         return {"default": cls.config_class()}
+
+    def statistics(self) -> dict[str, float]:
+        """Numbers the benchmarks report next to quality (3DGS: the Gaussian count)."""
+        return {}
 
     def set_run_length(self, max_steps: int) -> None:
         """Told by the trainer before step 0, so schedules (densification) scale to the run.

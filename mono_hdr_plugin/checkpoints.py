@@ -25,12 +25,6 @@ class CheckpointError(RuntimeError):
     """A checkpoint is missing, unreadable, or of another format version."""
 
 
-def write_json(path: Path, data: Any) -> None:
-    """JSON written atomically; +inf PSNR (identical images) is written as Infinity."""
-    with atomic_path(path) as temporary:
-        temporary.write_text(json.dumps(data, indent=2, default=str) + "\n")
-
-
 def config_to_json(config: Any) -> str:
     return json.dumps(dataclasses.asdict(config), default=str)
 

@@ -3,7 +3,7 @@
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import tyro
 from rich.console import Console
@@ -29,22 +29,6 @@ class EvalConfig:
 
 
 @dataclass
-class RenderConfig:
-    """Render the test views of a checkpoint: HDR as EXR, LDR as PNG at chosen exposures."""
-
-    checkpoint: Path
-    """A checkpoint written by `mono-hdr train`."""
-    out: Path = Path("outputs/render")
-    """Folder for the images."""
-    exposures: tuple[float, ...] = ()
-    """Exposure times in seconds for LDR PNGs (default: the training exposures). Baselines use
-    their learned CRF; Mono-HDR's LDR branch exists at its training exposure only, so other
-    exposures are shown as the HDR render scaled by the exposure through the sRGB curve."""
-    max_views: int | None = None
-    """Render at most this many test views."""
-
-
-@dataclass
 class BackbonesConfig:
     """List every backbone with where it came from."""
 
@@ -57,28 +41,33 @@ class PresetChoice:
 
 
 def command_train(argv: list[str]) -> None:
-    from mono_hdr_plugin.registry import available_backbones  # noqa: PLC0415
+    from mono_hdr_plugin.registry import BACKBONES  # noqa: PLC0415
     from mono_hdr_plugin.train import build_trainer, train_config_for  # noqa: PLC0415
 
-    backbones = available_backbones()
+    backbones = BACKBONES.available()
     # A preset changes the defaults of other flags, so tyro parses it first, alone.
     choice, _ = tyro.cli(PresetChoice, args=[a for a in argv if a not in ("-h", "--help")],
                          return_unknown_args=True, prog="mono-hdr train")
     backbone_arg = next((a for a in argv if a in backbones), None)
     defaults = {}
     for name, entry in backbones.items():
-        presets = entry.backbone_class.presets()
+        presets = entry.plugin.presets()
         preset = choice.preset if name == backbone_arg and choice.preset is not None else next(iter(presets))
         if preset not in presets:
             raise ValueError(f"--preset {preset!r} is not a preset of backbone {name!r}; choose one of "
                              f"{', '.join(presets)} (listed by `mono-hdr backbones`)")
-        defaults[name] = train_config_for(entry.backbone_class.config_class)(backbone=presets[preset], preset=preset)
-    described = {name: (_first_line(backbones[name].backbone_class.__doc__), default)
+        defaults[name] = train_config_for(entry.plugin.config_class)(backbone=presets[preset], preset=preset)
+    described = {name: (_first_line(backbones[name].plugin.__doc__), default)
                  for name, default in defaults.items()}
     config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
                                                 description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
     trainer = build_trainer(config, backbone_name)
+    if config.viewer:
+        from mono_hdr_plugin.viewer import train_with_viewer  # noqa: PLC0415
+
+        train_with_viewer(trainer, lambda metrics: print_metrics(metrics, config.out / "metrics.json"))
+        return
     metrics = trainer.train()
     print_metrics(metrics, config.out / "metrics.json")
 
@@ -88,46 +77,73 @@ def _first_line(text: str | None) -> str:
 
 
 def command_eval(config: EvalConfig) -> None:
-    from mono_hdr_plugin.checkpoints import write_json  # noqa: PLC0415
-    from mono_hdr_plugin.train import load_trained  # noqa: PLC0415
+    from mono_hdr_plugin.data.io import write_json  # noqa: PLC0415
+    from mono_hdr_plugin.evaluation import evaluate  # noqa: PLC0415
+    from mono_hdr_plugin.train import load_pipeline  # noqa: PLC0415
 
-    trainer, _ = load_trained(config.checkpoint, data_path=config.data, scene_name=config.scene)
-    trainer.config.out = config.out
-    metrics = trainer.evaluate(save_renders=config.save_renders)
+    run = load_pipeline(config.checkpoint, data_path=config.data, scene_name=config.scene)
+    metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
+                       render_dir=config.out / "renders" if config.save_renders else None)
+    metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
     write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
 
 
-def command_render(config: RenderConfig) -> None:
-    from mono_hdr_plugin.render import render_checkpoint  # noqa: PLC0415
-
-    written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
-    console.print(f"wrote {len(written)} images to {config.out}")
-
-
 def command_bench(argv: list[str]) -> None:
-    from mono_hdr_plugin.bench import BENCHMARKS  # noqa: PLC0415
+    from mono_hdr_plugin.bench import all_benchmarks  # noqa: PLC0415
 
-    config = tyro.extras.subcommand_cli_from_dict({name: cls for name, (cls, _) in BENCHMARKS.items()}, args=argv,
+    benchmarks = all_benchmarks()
+    config = tyro.extras.subcommand_cli_from_dict({name: cls for name, (cls, _) in benchmarks.items()}, args=argv,
                                                   prog="mono-hdr bench",
-                                                  description="Accuracy versus time: curves, the paper's tables, raster.")
-    function = next(function for cls, function in BENCHMARKS.values() if isinstance(config, cls))
+                                                  description="Accuracy versus time: curves, the paper's tables, and "
+                                                              "what each backbone contributes (3DGS: raster).")
+    function = next(function for cls, function in benchmarks.values() if isinstance(config, cls))
     config.out.mkdir(parents=True, exist_ok=True)
     function(config)
 
 
 def command_backbones(config: BackbonesConfig) -> None:
-    from mono_hdr_plugin.registry import available_backbones, broken_plugins  # noqa: PLC0415
+    from mono_hdr_plugin.registry import BACKBONES  # noqa: PLC0415
 
-    table = Table(title="mono-hdr backbones")
-    for column in ("name", "class", "source", "presets (first: default)", "loss", "rays per step"):
+    def describe(cls: type) -> tuple[str, ...]:
+        return (", ".join(cls.presets()), cls.loss_kind, "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
+
+    print_plugins(BACKBONES, "mono-hdr backbones", ("presets (first: default)", "loss", "rays per step"), describe)
+
+
+@dataclass
+class MethodsConfig:
+    """List every method (--method) with where it came from."""
+
+
+def command_methods(config: MethodsConfig) -> None:
+    from mono_hdr_plugin.methods import METHODS  # noqa: PLC0415
+
+    print_plugins(METHODS, "mono-hdr methods (--method)", ("what it is",), lambda cls: (_first_line(cls.__doc__),))
+
+
+@dataclass
+class LayoutsConfig:
+    """List every dataset layout (--layout) with where it came from."""
+
+
+def command_layouts(config: LayoutsConfig) -> None:
+    from mono_hdr_plugin.data.layouts import LAYOUTS  # noqa: PLC0415
+
+    print_plugins(LAYOUTS, "mono-hdr layouts (--layout; detected in this order)", ("files", "writable"),
+                  lambda cls: (cls.description, "yes" if cls.writable else "no"))
+
+
+def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Callable[[Any], tuple[str, ...]]) -> None:
+    """A table of a registry's plugins (name, class, source, then `describe(plugin)`), broken ones in red."""
+    table = Table(title=title)
+    for column in ("name", "class", "source", *columns):
         table.add_column(column)
-    for name, entry in available_backbones().items():
-        cls = entry.backbone_class
-        table.add_row(name, f"{cls.__module__}.{cls.__qualname__}", entry.source, ", ".join(cls.presets()),
-                      cls.loss_kind, "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
-    for name, reason in broken_plugins().items():
-        table.add_row(f"[red]{name}", "[red]broken", reason, "", "", "")
+    for name, entry in registry.available().items():
+        plugin = entry.plugin
+        table.add_row(name, f"{plugin.__module__}.{plugin.__qualname__}", entry.source, *describe(plugin))
+    for name, reason in registry.broken().items():
+        table.add_row(f"[red]{name}", "[red]broken", reason, *[""] * len(columns))
     console.print(table)
 
 
@@ -155,8 +171,9 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
     commands = {
         "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
         "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
-        "render": (RenderConfig.__doc__, simple(RenderConfig, command_render, "render")),
         "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
+        "methods": (MethodsConfig.__doc__, simple(MethodsConfig, command_methods, "methods")),
+        "layouts": (LayoutsConfig.__doc__, simple(LayoutsConfig, command_layouts, "layouts")),
         "bench": ("bench curves|paper|raster: what accuracy costs in time (JSON, Markdown, plots)", command_bench),
     }
     for name, (config_class, function) in _optional_commands().items():
@@ -165,8 +182,13 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 
 
 def _optional_commands() -> dict[str, tuple[type, Callable]]:
-    """Commands contributed by the studio and benchmark modules."""
-    found = {}
+    """Commands contributed by the studio, viewing and process-data modules."""
+    from mono_hdr_plugin.export import ExportConfig, export_command  # noqa: PLC0415
+    from mono_hdr_plugin.render import RenderConfig, render_command  # noqa: PLC0415
+    from mono_hdr_plugin.viewer import ViewConfig, view_command  # noqa: PLC0415
+
+    found = {"render": (RenderConfig, render_command), "view": (ViewConfig, view_command),
+             "export": (ExportConfig, export_command)}
     try:
         from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
         found["scenes"] = (ScenesConfig, list_scenes_command)
@@ -200,12 +222,12 @@ def run() -> None:
     import os  # noqa: PLC0415
 
     from mono_hdr_plugin.checkpoints import CheckpointError  # noqa: PLC0415
-    from mono_hdr_plugin.registry import BackboneRegistryError  # noqa: PLC0415
+    from mono_hdr_plugin.registry import RegistryError  # noqa: PLC0415
     from mono_hdr_plugin.train import TrainingDiverged  # noqa: PLC0415
 
     try:
         main()
-    except (ValueError, FileNotFoundError, CheckpointError, BackboneRegistryError, TrainingDiverged) as error:
+    except (ValueError, FileNotFoundError, CheckpointError, RegistryError, TrainingDiverged) as error:
         if os.environ.get("MONO_HDR_DEBUG"):
             raise
         console.print(f"[red]error:[/red] {error}")

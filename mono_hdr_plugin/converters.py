@@ -1,4 +1,4 @@
-"""Colour converters of Mono-HDR-3D (REFERENCE.md section 1) and their ablation twins.
+"""Colour converters of Mono-HDR-3D (docs/method.md) and their ablation twins.
 
 L2H-CC mirrors the inverted imaging equation I_h = X * S(I_l) + Y, one small network per
 colour channel; H2L-CC mirrors I_l = D(I_h) + B(I_h) and closes the loop. The plain MLPs

@@ -3,11 +3,13 @@ the HDR-NeRF / HDR-GS style baselines, all in the same wrapper role.
 
 A method takes a backbone's LdrFeatures for one view, renders LDR and HDR with ONE call of
 `features.composite`, and computes the training loss. It never looks inside the backbone.
+Methods are plugins: `@register_method("name")` on an HdrMethod subclass, or the
+`mono_hdr.methods` entry-point group; `mono-hdr methods` lists them.
 """
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor, nn
@@ -17,10 +19,9 @@ from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, Pe
                                         PlainL2H)
 from mono_hdr_plugin.losses import LossKind, photometric_loss
 from mono_hdr_plugin.metrics import normalise_hdr
+from mono_hdr_plugin.registry import PluginRegistry, RegistryError
 
-MethodName = Literal["mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs"]
-METHODS: tuple[str, ...] = ("mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs")
-# Paper defaults of the loss weights per backbone loss kind (REFERENCE.md section 1).
+# Paper defaults of the loss weights per backbone loss kind (docs/method.md).
 DEFAULT_BETA = {"l1_dssim": 0.05, "mse": 0.01}
 # Largest log radiance the baselines exponentiate: exp(30) ~ 1e13 stays finite in float32.
 MAX_LOG_RADIANCE = 30.0
@@ -30,10 +31,10 @@ MAX_LOG_RADIANCE = 30.0
 class MethodConfig:
     """How LDR features become HDR, and the loss terms that train them."""
 
-    method: MethodName = "mono"
-    """mono (L2H-CC + H2L-CC), the ablations mlp-l2h / mlp-h2l / no-h2l, or the baselines
-    hdr-nerf and hdr-gs (CRF of ln E + ln dt per sample / Gaussian, HDR composites exp(ln E);
-    hdr-nerf adds the unit-exposure loss)."""
+    method: str = "mono"
+    """A registered method (`mono-hdr methods`): mono (L2H-CC + H2L-CC), the ablations mlp-l2h /
+    mlp-h2l / no-h2l, the baselines hdr-nerf and hdr-gs (CRF of ln E + ln dt per sample /
+    Gaussian, HDR composites exp(ln E); hdr-nerf adds the unit-exposure loss), or a plugin's."""
     hidden: int = 128
     """Hidden width of the converters and the baselines' CRF networks."""
     use_ldr_loss: bool = True
@@ -88,7 +89,12 @@ def saturate_like(pred: Tensor, photo: Tensor) -> Tensor:
 
 
 class HdrMethod(nn.Module):
-    """Base of every method: forward renders, `losses` scores, `parameter_groups` trains."""
+    """Base of every method: forward renders, `losses` scores, `parameter_groups` trains.
+
+    A subclass implements `forward(features, exposure) -> MethodOutput` (one `composite` call)
+    and may extend `losses`, `parameter_groups` and `learning_rate`. Its parameters and buffers
+    are saved in checkpoints (`state_dict`), so anything that shapes a render must live there.
+    """
 
     renders_any_exposure = False
 
@@ -128,17 +134,28 @@ class HdrMethod(nn.Module):
         return base_lr
 
 
+def _validate_method(name: str, method_class: Any) -> None:
+    if not (isinstance(method_class, type) and issubclass(method_class, HdrMethod)):
+        raise RegistryError(f"method {name!r}: {method_class!r} is not a subclass of "
+                            "mono_hdr_plugin.methods.HdrMethod")
+
+
+METHODS: PluginRegistry[type[HdrMethod]] = PluginRegistry("method", "mono_hdr.methods", _validate_method)
+register_method = METHODS.register
+"""Class decorator: make an HdrMethod subclass available as `--method <name>`."""
+
+
+@register_method("mono")
 class MonoHDR(HdrMethod):
     """The meta-algorithm: L2H-CC per primitive, one compositing pass, H2L-CC closes the loop."""
 
+    l2h_class: type[nn.Module] = L2HColorConverter
+    h2l_class: type[nn.Module] | None = H2LColorConverter
+
     def __init__(self, config: MethodConfig, loss_kind: LossKind):
         super().__init__(config, loss_kind)
-        self.l2h = PlainL2H(config.hidden) if config.method == "mlp-l2h" else L2HColorConverter(config.hidden)
-        self.h2l: nn.Module | None = None
-        if config.method == "mlp-h2l":
-            self.h2l = PlainH2L(config.hidden)
-        elif config.method != "no-h2l":
-            self.h2l = H2LColorConverter(config.hidden)
+        self.l2h = self.l2h_class(config.hidden)
+        self.h2l = self.h2l_class(config.hidden) if self.h2l_class is not None else None
 
     def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
         hdr_colors = self.l2h(features.colors)
@@ -153,6 +170,27 @@ class MonoHDR(HdrMethod):
         if self.config.use_h2l_loss and output.ldr_from_hdr is not None:
             terms["h2l"] = self.beta * self._loss(output.ldr_from_hdr, targets.ldr)
         return terms
+
+
+@register_method("mlp-l2h")
+class MonoHdrPlainL2H(MonoHDR):
+    """Ablation: a plain MLP of the same width instead of L2H-CC."""
+
+    l2h_class = PlainL2H
+
+
+@register_method("mlp-h2l")
+class MonoHdrPlainH2L(MonoHDR):
+    """Ablation: a plain MLP of the same width instead of H2L-CC."""
+
+    h2l_class = PlainH2L
+
+
+@register_method("no-h2l")
+class MonoHdrOpenLoop(MonoHDR):
+    """Ablation: no H2L-CC, so no closed loop (and no L_h2l)."""
+
+    h2l_class = None
 
 
 class CrfBaseline(HdrMethod):
@@ -172,6 +210,7 @@ class CrfBaseline(HdrMethod):
         return MethodOutput(ldr=image[..., :3], hdr=image[..., 3:])
 
 
+@register_method("hdr-nerf")
 class HdrNerfBaseline(CrfBaseline):
     """HDR-NeRF: the shared baseline plus its unit-exposure loss pinning the CRF at ln dt = 0 and
     its CRF learning-rate warm-up."""
@@ -188,16 +227,16 @@ class HdrNerfBaseline(CrfBaseline):
         return base_lr if warmup <= 0 else base_lr * min(1.0, (step + 1) / warmup)
 
 
+@register_method("hdr-gs")
 class HdrGsBaseline(CrfBaseline):
     """HDR-GS: the shared baseline (tone mapper per Gaussian, HDR rasterises exp(ln E)) and nothing else."""
 
 
 def build_method(config: MethodConfig, loss_kind: LossKind) -> HdrMethod:
     """The method named in the config, for a backbone whose default loss is `loss_kind`."""
-    if config.method in ("mono", "mlp-l2h", "mlp-h2l", "no-h2l"):
-        return MonoHDR(config, loss_kind)
-    if config.method == "hdr-nerf":
-        return HdrNerfBaseline(config, loss_kind)
-    if config.method == "hdr-gs":
-        return HdrGsBaseline(config, loss_kind)
-    raise ValueError(f"unknown method {config.method!r}; choose one of {', '.join(METHODS)}")
+    return METHODS.get(config.method)(config, loss_kind)
+
+
+def method_names() -> list[str]:
+    """Every registered method, built-in first."""
+    return list(METHODS.available())

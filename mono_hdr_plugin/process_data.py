@@ -31,7 +31,8 @@ from rich.table import Table
 
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import read_image, write_png
-from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key, write_json
+from mono_hdr_plugin.data.io import write_json
+from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key
 from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER
 from mono_hdr_plugin.data.loading import downscale_image
 

@@ -1,4 +1,12 @@
-"""Training, evaluation and rendering of any backbone with any method."""
+"""The one training loop (any backbone, any method), its hooks, and loading a trained pipeline.
+
+    trainer = build_trainer(config, "gs")        # a Pipeline, Adam, the data, step and seconds
+    metrics = trainer.train()                    # progress, periodic eval, checkpoints, metrics.json
+
+`Trainer.fit(hooks)` is the loop itself: it stops at --max-steps or --max-seconds and refuses a
+run that keeps producing non-finite losses; everything else (progress bar, evaluation,
+checkpoints, the benchmarks' curves) is a `TrainingHook`.
+"""
 
 import dataclasses
 import json
@@ -7,7 +15,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NamedTuple
 
 import torch
 import tyro
@@ -16,13 +24,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from mono_hdr_plugin.backbone import Backbone
 from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.checkpoints import (config_from_dict, config_to_json, load_checkpoint, save_checkpoint,
-                                         write_json)
+from mono_hdr_plugin.checkpoints import config_from_dict, config_to_json, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
-from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, psnr, ssim,
-                                     tone_mapped_pair)
+from mono_hdr_plugin.data.io import write_json
+from mono_hdr_plugin.evaluation import evaluate
+from mono_hdr_plugin.data.layouts import LAYOUTS
+from mono_hdr_plugin.methods import METHODS, HdrMethod, MethodConfig, Targets
+from mono_hdr_plugin.metrics import psnr
+from mono_hdr_plugin.pipeline import Pipeline
 from mono_hdr_plugin.registry import get_backbone
 
 console = Console(stderr=True)
@@ -69,6 +79,12 @@ class TrainConfig:
     """Stop after this many consecutive steps with a non-finite loss or gradient."""
     quiet: bool = False
     """No progress bar (tests, benchmarks)."""
+    viewer: bool = False
+    """Watch training live in the browser (see `mono-hdr view --help`); it stays open after training."""
+    viewer_port: int = 7007
+    """Port of the --viewer (the next free one when taken)."""
+    viewer_host: str = "127.0.0.1"
+    """Address the --viewer listens on; anything but localhost opens it to the network."""
 
 
 class TrainingDiverged(RuntimeError):
@@ -97,6 +113,9 @@ def check_train_config(config: TrainConfig) -> None:
     if config.max_eval_views is not None and config.max_eval_views < 1:
         raise ValueError(f"--max-eval-views must be >= 1 (or omitted for all views), got {config.max_eval_views}")
     parse_view_ratio(config.hdr_view_ratio)
+    METHODS.get(config.hdr.method)  # a misspelt method or layout is named before any data is read
+    if config.data.layout != "auto":
+        LAYOUTS.get(config.data.layout)
 
 
 def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
@@ -110,39 +129,35 @@ def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
     return [i in chosen for i in range(num_views)]
 
 
-def camera_chunks(backbone: Backbone, camera: Camera) -> list[Camera]:
-    """The camera split into pixel batches of `backbone.render_chunk` rays (whole if None)."""
-    if backbone.render_chunk is None:
-        return [camera]
-    return [camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(backbone.render_chunk)]
+class TrainingHook:
+    """Something the training loop calls: at the start, after every good step, at the end."""
 
+    def on_start(self, trainer: "Trainer") -> None:
+        pass
 
-def render_full(backbone: Backbone, method: HdrMethod, camera: Camera, exposure: float) -> MethodOutput:
-    """Render a whole image, in chunks of `backbone.render_chunk` rays when the backbone asks."""
-    parts = [method(backbone.render_ldr_features(part), exposure) for part in camera_chunks(backbone, camera)]
-    shape = (camera.height, camera.width, 3)
-    return MethodOutput(ldr=torch.cat([p.ldr for p in parts]).reshape(shape),
-                        hdr=torch.cat([p.hdr for p in parts]).reshape(shape))
+    def after_step(self, trainer: "Trainer", record: dict[str, Any]) -> None:
+        pass
+
+    def on_end(self, trainer: "Trainer") -> None:
+        pass
 
 
 class Trainer:
-    """Owns backbone, method, optimiser and data for one run."""
+    """Owns a pipeline (backbone + method), its optimiser and the data for one run."""
 
     def __init__(self, config: TrainConfig, backbone_name: str, scene: SceneData):
         check_train_config(config)
-        self.config, self.backbone_name, self.scene = config, backbone_name, scene
+        self.config, self.scene = config, scene
         torch.manual_seed(config.seed)
-        backbone_class = get_backbone(backbone_name)
-        self.backbone: Backbone = backbone_class(config.backbone, scene.scene_info())
-        self.run_length = config.max_steps
-        self.backbone.set_run_length(self.run_length)
         ldr_share, _ = parse_view_ratio(config.hdr_view_ratio)
         method_config = config.hdr
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
             method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
-        self.method = build_method(method_config, backbone_class.loss_kind)
+        self.pipeline = Pipeline.create(backbone_name, config.backbone, method_config, scene.scene_info())
+        self.run_length = config.max_steps
+        self.pipeline.set_run_length(self.run_length)
         self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
-        groups = self.backbone.parameter_groups() + self.method.parameter_groups()
+        groups = self.pipeline.parameter_groups()
         for group in groups:
             group["base_lr"] = group["lr"]
         self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
@@ -152,6 +167,18 @@ class Trainer:
         self.train_seconds = 0.0
         self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
+
+    @property
+    def backbone(self) -> Backbone:
+        return self.pipeline.backbone
+
+    @property
+    def method(self) -> HdrMethod:
+        return self.pipeline.method
+
+    @property
+    def backbone_name(self) -> str:
+        return self.pipeline.backbone_name
 
     @property
     def finished(self) -> bool:
@@ -170,7 +197,7 @@ class Trainer:
         estimate = min(self.config.max_steps, self.step + max(1, int(remaining / per_step)))
         if abs(estimate - self.run_length) > 0.02 * self.run_length:
             self.run_length = estimate
-            self.backbone.set_run_length(estimate)
+            self.pipeline.set_run_length(estimate)
 
     # ----------------------------------------------------------------- training
     def _next_view(self) -> int:
@@ -191,11 +218,6 @@ class Trainer:
                 Targets(ldr=view.image[rows, cols], exposure=view.exposure,
                         hdr=None if hdr is None else hdr[rows, cols]))
 
-    def _set_learning_rates(self) -> None:
-        for group in self.optimizer.param_groups:
-            owner = self.method if group["name"] == "method" else self.backbone
-            group["lr"] = owner.learning_rate(group["name"], self.step, group["base_lr"])
-
     def _bad_tensors(self, loss: torch.Tensor) -> list[str]:
         bad = [] if torch.isfinite(loss) else ["loss"]
         for group in self.optimizer.param_groups:
@@ -204,16 +226,16 @@ class Trainer:
                     bad.append(f"grad of {group['name']}[{index}] {tuple(param.shape)}")
         return bad
 
-    def train_step(self) -> dict[str, float]:
+    def train_step(self) -> dict[str, Any]:
         """One optimiser step on one training view; returns the loss terms (floats)."""
         started = time.perf_counter()
         index = self._next_view()
         view = self.scene.train[index]
         camera, targets = self._batch(view, self.hdr_views[index])
-        self._set_learning_rates()
-        features = self.backbone.render_ldr_features(camera)
-        output = self.method.render(features, targets.exposure)
-        terms = {**self.method.losses(output, targets, self.step), **self.backbone.regularisation()}
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.pipeline.learning_rate(group, self.step)
+        features, output = self.pipeline(camera, targets.exposure)
+        terms = self.pipeline.losses(output, targets, self.step)
         loss = torch.stack(list(terms.values())).sum()
         loss.backward()
         bad = self._bad_tensors(loss)
@@ -221,7 +243,7 @@ class Trainer:
             self.optimizer.zero_grad(set_to_none=True)
         else:
             self.optimizer.step()
-            self.backbone.after_step(self.step, features, self.optimizer)
+            self.pipeline.after_step(self.step, features, self.optimizer)
             self.optimizer.zero_grad(set_to_none=True)
         self.step += 1
         elapsed = time.perf_counter() - started
@@ -235,57 +257,56 @@ class Trainer:
         record["bad_tensors"] = bad
         return record
 
-    def train(self) -> dict[str, Any]:
-        """Run to max_steps with progress, periodic eval and checkpoints; then evaluate."""
-        config = self.config
+    def fit(self, hooks: list[TrainingHook] = ()) -> None:
+        """Train until --max-steps or --max-seconds, calling `hooks` after every good step.
+
+        A step with a non-finite loss or gradient is skipped; --nan-patience of them in a row
+        raise TrainingDiverged.
+        """
         failures = 0
-        progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
-                            TimeElapsedColumn(), console=console, disable=config.quiet)
-        with progress:
-            task = progress.add_task(f"{self.backbone_name}/{config.hdr.method}", total=self.run_length,
-                                     completed=self.step, loss=math.nan, psnr=math.nan)
+        for hook in hooks:
+            hook.on_start(self)
+        try:
             while not self.finished:
                 record = self.train_step()
                 if record["skipped"]:
                     failures += 1
                     console.print(f"[yellow]step {self.step}: non-finite {', '.join(record['bad_tensors'])}; "
                                   "step skipped")
-                    if failures >= config.nan_patience:
+                    if failures >= self.config.nan_patience:
                         raise TrainingDiverged(
                             f"{failures} consecutive steps had a non-finite loss or gradient (last: "
                             f"{', '.join(record['bad_tensors'])}); stopped at step {self.step}. The last good "
-                            f"checkpoint is {config.out / 'checkpoints' / 'latest.pt'}: lower the learning "
+                            f"checkpoint is {self.checkpoint_path()}: lower the learning "
                             "rates or check the data for NaN/Inf")
                     continue
                 failures = 0
-                progress.update(task, completed=self.step, total=self.run_length, loss=record["loss"],
-                                psnr=record["ldr_psnr"])
-                if config.eval_every and self.step % config.eval_every == 0 and not self.finished:
-                    metrics = self.evaluate(save_renders=False)
-                    self.history.append(metrics)
-                    progress.console.print(f"step {self.step}: HDR PSNR {metrics.get('hdr_psnr', math.nan):.2f} dB, "
-                                           f"LDR PSNR {metrics['ldr_psnr']:.2f} dB")
-                if self.step % config.checkpoint_every == 0:
-                    self.save()
+                for hook in hooks:
+                    hook.after_step(self, record)
+        finally:
+            for hook in hooks:
+                hook.on_end(self)
+
+    def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
+        """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
+        viewer's); then save, evaluate and write OUT/metrics.json (and renders)."""
+        config = self.config
+        hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
+        if config.eval_every:
+            hooks.append(EvaluateEvery(config.eval_every))
+        hooks.append(CheckpointEvery(config.checkpoint_every))
+        self.fit([*hooks, *extra_hooks])
         self.save()
         metrics = self.evaluate(save_renders=config.save_renders)
         write_json(config.out / "metrics.json", metrics)
         return metrics
 
     # --------------------------------------------------------------- evaluation
-    @torch.no_grad()
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
-        """Test-view metrics with backbone and method in eval mode, back to training after."""
-        self.backbone.eval()
-        self.method.eval()
-        try:
-            return evaluate(self.backbone, self.method, self.scene, self.backbone_name, self.config,
-                            steps=self.step, train_seconds=self.train_seconds,
-                            render_dir=self.config.out / "renders" if save_renders else None)
-        finally:
-            self.backbone.train()
-            self.method.train()
+        """Test-view metrics of the current model (eval mode), with the step and training seconds."""
+        metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views,
+                           render_dir=self.config.out / "renders" if save_renders else None)
+        return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 
     # -------------------------------------------------------------- checkpoints
     def checkpoint_path(self) -> Path:
@@ -295,8 +316,7 @@ class Trainer:
         save_checkpoint(self.checkpoint_path(), {
             "backbone_name": self.backbone_name,
             "config": config_to_json(self.config),
-            "backbone": self.backbone.state_dict(),
-            "method": self.method.state_dict(),
+            "pipeline": self.pipeline.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "step": self.step,
             "train_seconds": self.train_seconds,
@@ -310,93 +330,63 @@ class Trainer:
         """Load model, converters, optimiser and RNG state from a checkpoint payload."""
         if payload["backbone_name"] != self.backbone_name:
             raise ValueError(f"the checkpoint holds a {payload['backbone_name']!r} model, not {self.backbone_name!r}")
-        self.backbone.load_state_dict(payload["backbone"])
-        self.method.load_state_dict(payload["method"])
-        _match_optimizer_groups(self.optimizer, self.backbone.parameter_groups() + self.method.parameter_groups())
+        self.pipeline.load_state_dict(payload["pipeline"])
+        for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+            group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
         self.optimizer.load_state_dict(payload["optimizer"])
         self.step = payload["step"]
         self.train_seconds = payload["train_seconds"]
         if self.config.max_seconds is not None:  # keep the schedule the time budget had scaled to
             self.run_length = min(payload["run_length"], self.config.max_steps)
-            self.backbone.set_run_length(self.run_length)
+            self.pipeline.set_run_length(self.run_length)
         self.generator.set_state(payload["generator"])
         torch.set_rng_state(payload["torch_rng"])
         self.view_order = payload["view_order"].tolist()
 
 
-def _match_optimizer_groups(optimizer: torch.optim.Optimizer, groups: list[dict]) -> None:
-    """Point the optimiser at the (possibly resized) parameters before loading its state."""
-    for group, fresh in zip(optimizer.param_groups, groups, strict=True):
-        group["params"] = list(fresh["params"])
+class ProgressBar(TrainingHook):
+    """A rich progress bar with the loss and the training-view LDR PSNR."""
+
+    def on_start(self, trainer: Trainer) -> None:
+        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
+                                 TimeElapsedColumn(), console=console)
+        self.task = self.progress.add_task(f"{trainer.backbone_name}/{trainer.pipeline.method_name}",
+                                           total=trainer.run_length, completed=trainer.step, loss=math.nan,
+                                           psnr=math.nan)
+        self.progress.start()
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        self.progress.update(self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"],
+                             psnr=record["ldr_psnr"])
+
+    def on_end(self, trainer: Trainer) -> None:
+        self.progress.stop()
 
 
-@torch.no_grad()
-def evaluate(backbone: Backbone, method: HdrMethod, scene: SceneData, backbone_name: str, config: TrainConfig,
-             steps: int, train_seconds: float, render_dir: Path | None = None) -> dict[str, Any]:
-    """Metrics on the test views: LDR at each exposure the method can render, HDR per view."""
-    train_exposures = set(scene.train_exposures)
-    views = [v for v in scene.test if method.renders_any_exposure or v.exposure in train_exposures]
-    if not views:
-        raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
-                         f"({sorted(train_exposures)}) for method {config.hdr.method!r}")
-    view_ids = sorted({v.view_id for v in views})[:config.max_eval_views]
-    views = [v for v in views if v.view_id in set(view_ids)]
-    try:
-        lpips_model, lpips_skipped = load_lpips(), None
-    except LpipsUnavailable as reason:
-        lpips_model, lpips_skipped = None, str(reason)
-    per_exposure: dict[float, list[tuple[float, float]]] = {}
-    lpips_rows: dict[str, list[float]] = {"lpips_ldr": [], "lpips_hdr": []}
-    hdr_rows: list[dict[str, float]] = []
-    hdr_done: set[int] = set()
-    for view in views:
-        output = render_full(backbone, method, view.camera, view.exposure)
-        ldr = output.ldr.clamp(0.0, 1.0)
-        per_exposure.setdefault(view.exposure, []).append((psnr(ldr, view.image), ssim(ldr.double(), view.image.double()).item()))
-        if lpips_model is not None:
-            lpips_rows["lpips_ldr"].append(lpips_distance(lpips_model, ldr, view.image))
-        if view.hdr is not None and view.view_id not in hdr_done:
-            hdr_done.add(view.view_id)
-            hdr_rows.append(hdr_metrics(output.hdr, view.hdr))
-            if lpips_model is not None:
-                lpips_rows["lpips_hdr"].append(lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max")))
-            if render_dir is not None:
-                save_view_renders(render_dir, view, output)
-    # The headline LDR figure averages the exposures the model was trained at (t1/t3/t5).
-    headline = [e for e in per_exposure if e in train_exposures] or list(per_exposure)
-    ldr_psnr_by_exposure = {f"{e:g}": _mean([p for p, _ in rows]) for e, rows in sorted(per_exposure.items())}
-    ldr_ssim_by_exposure = {f"{e:g}": _mean([s for _, s in rows]) for e, rows in sorted(per_exposure.items())}
-    metrics: dict[str, Any] = {
-        "backbone": backbone_name, "method": config.hdr.method, "scene": scene.name,
-        "steps": steps, "train_seconds": train_seconds,
-        "ldr_psnr": _mean([ldr_psnr_by_exposure[f"{e:g}"] for e in headline]),
-        "ldr_ssim": _mean([ldr_ssim_by_exposure[f"{e:g}"] for e in headline]),
-        "ldr_psnr_per_exposure": ldr_psnr_by_exposure,
-        "ldr_ssim_per_exposure": ldr_ssim_by_exposure,
-        "test_views": len(view_ids),
-    }
-    for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"):
-        metrics[key] = _mean([row[key] for row in hdr_rows]) if hdr_rows else None
-    for key, values in lpips_rows.items():
-        metrics[key] = _mean(values) if values else None
-    if lpips_skipped:
-        metrics["lpips_skipped"] = lpips_skipped
-    return metrics
+class EvaluateEvery(TrainingHook):
+    """Test-view metrics every `steps` steps (not at the last one: the run evaluates at its end)."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if trainer.step % self.steps == 0 and not trainer.finished:
+            metrics = trainer.evaluate()
+            trainer.history.append(metrics)
+            console.print(f"step {trainer.step}: HDR PSNR {metrics.get('hdr_psnr') or math.nan:.2f} dB, "
+                          f"LDR PSNR {metrics['ldr_psnr']:.2f} dB")
 
 
-def _mean(values: list[float]) -> float:
-    return sum(values) / len(values) if values else math.nan
+class CheckpointEvery(TrainingHook):
+    """OUT/checkpoints/latest.pt every `steps` steps."""
 
+    def __init__(self, steps: int):
+        self.steps = steps
 
-def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> None:
-    """<name>_hdr.exr (linear), <name>_ldr.png, <name>_hdr_mulaw.png (tone-mapped for display)."""
-    from mono_hdr_plugin.data.io import write_exr, write_png  # noqa: PLC0415 - keeps import light
-    from mono_hdr_plugin.metrics import normalise_hdr  # noqa: PLC0415
-
-    stem = view.stem
-    write_exr(render_dir / f"{stem}_hdr.exr", output.hdr.float().numpy())
-    write_png(render_dir / f"{stem}_ldr.png", output.ldr.clamp(0, 1).numpy())
-    write_png(render_dir / f"{stem}_hdr_mulaw.png", normalise_hdr(output.hdr).numpy())
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if trainer.step % self.steps == 0:
+            trainer.save()
 
 
 def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:
@@ -413,21 +403,33 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     return trainer
 
 
-def load_trained(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
-                 scene_name: str | None = None) -> tuple[Trainer, dict[str, Any]]:
-    """A Trainer restored from a checkpoint file, on its own data unless other data is given
+class TrainedRun(NamedTuple):
+    """A pipeline loaded from a checkpoint for evaluation or rendering (no optimiser)."""
+
+    pipeline: Pipeline
+    scene: SceneData
+    config: TrainConfig
+    payload: dict[str, Any]
+
+
+def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
+                  scene_name: str | None = None) -> TrainedRun:
+    """The trained pipeline of a checkpoint file, with its own data unless other data is given
     (an in-memory `scene`, a dataset folder or a built-in scene name)."""
     payload = load_checkpoint(checkpoint)
     backbone_class = get_backbone(payload["backbone_name"])
-    values = json.loads(payload["config"])
-    train_config_class = train_config_for(backbone_class.config_class)
-    config = config_from_dict(train_config_class, values)
+    config = config_from_dict(train_config_for(backbone_class.config_class), json.loads(payload["config"]))
     if data_path is not None or scene_name is not None:
         config.data = dataclasses.replace(config.data, data=data_path, scene=scene_name)
-    config.resume = False
-    trainer = build_trainer(config, payload["backbone_name"], scene)
-    trainer.restore(payload)
-    return trainer, payload
+    if scene is None:
+        from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
+
+        scene = load_scene(config.data)
+    pipeline = Pipeline.create(payload["backbone_name"], config.backbone, config.hdr, scene.scene_info())
+    pipeline.set_run_length(payload["run_length"])
+    pipeline.load_state_dict(payload["pipeline"])
+    pipeline.eval()
+    return TrainedRun(pipeline, scene, config, payload)
 
 
 _TRAIN_CONFIGS: dict[type, type] = {}

@@ -1,8 +1,8 @@
 """Rasteriser speed, side by side in one run.
 
-Not a test: timings depend on the machine. `mono-hdr bench raster --out OUT` calls
-`bench_raster`, which prints a table and writes OUT/raster.json. On seeded random scenes
-(10k Gaussians at 128 x 128, 50k at 256 x 256) it times:
+Not a test: timings depend on the machine. The 3DGS backbone contributes it to `mono-hdr bench`
+(`GaussianBackbone.benchmarks`): `mono-hdr bench raster --out OUT` prints a table and writes
+OUT/raster.json. On seeded random scenes (10k Gaussians at 128 x 128, 50k at 256 x 256) it times:
 
 - forward + backward of what a training step rasterises: SH colours (degree 3) of the visible
   Gaussians, projection, compositing; 3 channels (LDR only, what other CPU rasterisers do)
@@ -13,12 +13,13 @@ Not a test: timings depend on the machine. `mono-hdr bench raster --out OUT` cal
 The scene is built exactly as OpenSplat's CPU anchor script builds its own from the same seed
 (camera frame = world frame, 60 degree horizontal field of view, centres inside the frustum
 at depths 2 to 6), so that script's timing can be set next to these (see
-benchmarks/raster_vs_opensplat.sh).
+benchmarks/raster_vs_opensplat.py).
 """
 
 import math
 import statistics
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -29,10 +30,23 @@ from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.backbone import SceneInfo
 from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.methods import MethodConfig, MonoHDR
 
 SIZES = ((10_000, 128, 128), (50_000, 256, 256))
+
+
+@dataclass
+class BenchRasterConfig:
+    """3DGS rasteriser: forward + backward of a training pass (3 and 6 channels, C++ kernel and
+    its torch twin) and render frame rates with and without the HDR branch."""
+
+    out: Path = Path("benchmarks/results")
+    """Folder for raster.json."""
+    repeats: int = 7
+    """Timed runs per measurement (median), after a warm-up."""
+    torch_twin: bool = True
+    """Also time the pure-torch twin (slow: seconds per pass at 50k Gaussians)."""
 
 
 def anchor_scene(gaussians: int, height: int, width: int, seed: int = 0) -> tuple[Camera, dict]:
@@ -167,3 +181,7 @@ def time_training_pass(gaussians: int, height: int, width: int, runs: int = 5) -
         times.append(time.perf_counter() - start)
     return {"gaussians": gaussians, "height": height, "width": width, "fwd_bwd_s": statistics.median(times),
             "threads": torch.get_num_threads()}
+
+
+def bench_raster_command(config: BenchRasterConfig) -> list[dict]:
+    return bench_raster(config.out, repeats=config.repeats, with_torch_twin=config.torch_twin)

@@ -2,11 +2,13 @@
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import torch
 import tyro
 from torch import Tensor, nn
 
+from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import check_backend, project_gaussians, rasterize
 from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
@@ -66,14 +68,14 @@ class GaussianBackbone(Backbone):
 
     config_class = GaussianConfig
     loss_kind = "l1_dssim"
+    paper_backbone = "3DGS"
     pixel_batch = None
 
     def __init__(self, config: GaussianConfig, scene: SceneInfo):
         super().__init__(config, scene)
         check_backend(config.backend)
         num_sh_bases(config.sh_degree)  # validates the degree
-        self.scene_extent = scene.extent if scene.train_cameras else float(
-            (scene.bounds_max - scene.bounds_min).norm() / 2)
+        self.scene_extent = scene.extent
         training_pixels = sum(camera.width * camera.height for camera in scene.train_cameras)
         means, colors = self._initial_points(config, scene)
         self.budget = config.strategy.budget(training_pixels) if training_pixels else means.shape[0]
@@ -96,7 +98,7 @@ class GaussianBackbone(Backbone):
         """The scene's points (COLMAP, studio surface samples) with their colours, else random
         points in the scene bounds."""
         if scene.points is not None and len(scene.points) > 0:
-            points = scene.points.detach().float().reshape(-1, 3)
+            points = scene.points.detach().float().reshape(-1, 3).clone()  # training moves the means in place
             if scene.point_colors is None:
                 return points, torch.full_like(points, 0.5)
             colors = scene.point_colors.detach().reshape(-1, 3)
@@ -112,6 +114,18 @@ class GaussianBackbone(Backbone):
         return means, torch.rand(config.random_init_points, 3)
 
     @classmethod
+    def benchmarks(cls) -> dict:
+        """`mono-hdr bench raster`: the C++ kernel against its torch twin, 3 vs 6 channels."""
+        from backbones.gs.benchmark import BenchRasterConfig, bench_raster_command  # noqa: PLC0415
+
+        return {"raster": (BenchRasterConfig, bench_raster_command)}
+
+    @classmethod
+    def tuning_space(cls) -> dict[str, tuple]:
+        """The recipe table's grid, around the cpu preset's base-colour and position rates."""
+        return {"lr_sh_dc": (0.005, 0.01), "lr_means": (1.6e-4, 4.8e-4)}
+
+    @classmethod
     def presets(cls) -> dict[str, GaussianConfig]:
         """cpu (default): budgeted 3DGS-MCMC for 2-10 minute runs; paper: the official 3DGS recipe
         (30k steps, clone/split/prune), both scaled to the run length."""
@@ -120,6 +134,9 @@ class GaussianBackbone(Backbone):
     @property
     def num_gaussians(self) -> int:
         return self.means.shape[0]
+
+    def statistics(self) -> dict[str, float]:
+        return {"gaussians": self.num_gaussians}
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
@@ -186,6 +203,10 @@ class GaussianBackbone(Backbone):
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
         self.strategy_state = self.config.strategy.initial_state(self.num_gaussians)
+
+    def export_ply(self, path) -> Path:
+        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
+        return export_ply(self, path)
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree

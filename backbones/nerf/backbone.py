@@ -26,6 +26,7 @@ class NerfBackbone(Backbone):
 
     config_class = NerfConfig
     loss_kind = "mse"
+    paper_backbone = "NeRF"
     pixel_batch = 1024
 
     def __init__(self, config: NerfConfig, scene: SceneInfo):

@@ -13,8 +13,9 @@ class DataConfig:
     """A dataset folder on disk (HDR-NeRF synthetic/real or HDR-GS layout, detected)."""
     scene: str | None = None
     """A built-in studio scene (see `mono-hdr scenes`); used when --data is not given."""
-    layout: Literal["auto", "hdr-nerf-synthetic", "hdr-nerf-real", "hdr-gs"] = "auto"
-    """On-disk layout of --data; auto detects it from the files present."""
+    layout: str = "auto"
+    """On-disk layout of --data: auto detects it from the files present; or a registered layout
+    (`mono-hdr layouts`: hdr-gs, hdr-nerf-synthetic, hdr-nerf-real, or a plugin's)."""
     protocol: Literal["single", "multi", "fixed"] = "single"
     """single: the paper's setting, every view at exposure t1/t3/t5 chosen by --exposure-index
     (train and LDR test); multi: HDR-NeRF/HDR-GS, each train view one random exposure of

@@ -11,6 +11,7 @@ silently wrong; write float32 (half=False) or scale the image instead.
 """
 
 import contextlib
+import json
 import os
 from pathlib import Path
 
@@ -35,6 +36,13 @@ def atomic_path(path: str | os.PathLike):
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def write_json(path: str | os.PathLike, data) -> None:
+    """JSON written atomically; values JSON lacks (paths) as strings; +inf PSNR (identical images)
+    as Infinity."""
+    with atomic_path(path) as temporary:
+        temporary.write_text(json.dumps(data, indent=2, default=str) + "\n")
 
 
 def _existing(path: str | os.PathLike) -> Path:

@@ -1,6 +1,7 @@
 """The one entry point from a DataConfig to a SceneData: files on disk or a studio scene."""
 
 import warnings
+from dataclasses import replace
 from pathlib import PurePosixPath
 
 import numpy as np
@@ -10,26 +11,17 @@ from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
-
-
-def scene_names() -> list[str]:
-    """Names of the built-in studio scenes."""
-    from mono_hdr_plugin.studio.scenes import SCENES
-
-    return list(SCENES)
+from mono_hdr_plugin.data.sources import named_scene, scene_names
 
 
 def captured_scene(config: DataConfig) -> CapturedScene:
     """Every photo of the scene that `config` names (--data folder or --scene name)."""
     if config.data is not None:
-        from mono_hdr_plugin.data.layouts import read_layout
-
         return read_layout(config.data, config.layout)
     if config.scene is not None:
-        from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
-
-        return studio_captured_scene(get_scene(config.scene), seed=config.exposure_seed)
+        return named_scene(config.scene, seed=config.exposure_seed)
     raise DatasetError("no scene given: pass --data FOLDER or --scene NAME "
                        f"(built-in scenes: {', '.join(scene_names())})")
 
@@ -47,7 +39,9 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
 
 
 def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float]) -> list[View]:
-    camera = view.camera.scaled(1.0 / factor) if factor > 1 else view.camera
+    camera = view.camera
+    if factor > 1:  # downscale_image crops the remainder: the camera keeps the whole blocks only
+        camera = replace(camera.scaled(1.0 / factor), width=camera.width // factor, height=camera.height // factor)
     hdr = None
     if view.hdr is not None:
         hdr = torch.from_numpy(downscale_image(view.hdr(), factor, view.name))

@@ -1,1 +1,1 @@
-"""Scene studio: built-in Mitsuba 3 HDR scenes and a capture simulator (see DESIGN.md)."""
+"""Scene studio: built-in Mitsuba 3 HDR scenes and a capture simulator."""

@@ -1,7 +1,7 @@
 """Capture simulator: HDR radiance -> one LDR photo, applying only the effects a scene declares.
 
 The stages follow the imaging equation I_l = CRF(clip(dt / g * I_h + I_0 + eps)) (Hasinoff et
-al. 2010, REFERENCE.md) in physical order:
+al. 2010, docs/method.md) in physical order:
 
     exposure -> gain -> offset -> noise -> vignette -> white_balance -> crf -> clip -> quantize
 

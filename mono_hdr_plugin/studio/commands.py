@@ -2,14 +2,10 @@
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 from mono_hdr_plugin.studio.render import dynamic_range, render_scene
 from mono_hdr_plugin.studio.scene import StudioScene
 from mono_hdr_plugin.studio.scenes import SCENES
-
-LAYOUT_NAMES = {"hdr-nerf": "hdr-nerf-synthetic", "hdr-gs": "hdr-gs"}
-
 
 @dataclass
 class SynthConfig:
@@ -19,9 +15,9 @@ class SynthConfig:
     """Built-in scene to write (see `mono-hdr scenes`)."""
     out: Path = Path("outputs/synth")
     """Folder to write the dataset into (created if missing)."""
-    layout: Literal["hdr-nerf", "hdr-gs"] = "hdr-gs"
-    """hdr-nerf: transforms/exposure JSON + PNGs + EXR (HDR-NeRF synthetic); hdr-gs: images/, exr/,
-    COLMAP sparse/0 and exposures.json."""
+    layout: str = "hdr-gs"
+    """A writable layout (`mono-hdr layouts`): hdr-gs (images/, exr/, COLMAP sparse/0, exposures.json),
+    hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
     seed: int = 0
     """Seed of the simulated sensor noise."""
 
@@ -45,7 +41,7 @@ def synth(config: SynthConfig) -> Path:
     from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
 
     scene = get_scene(config.scene)
-    write_layout(studio_captured_scene(scene, seed=config.seed), config.out, LAYOUT_NAMES[config.layout],
+    write_layout(studio_captured_scene(scene, seed=config.seed), config.out, config.layout,
                  bits=png_bits(scene))
     return config.out
 

@@ -1,53 +1,185 @@
-"""Benchmarks run end to end (tiny budgets) and write the files they promise."""
+"""Benchmarks run end to end (tiny budgets), write the files they promise, resume, record failures,
+and decide orderings by the documented rule."""
 
 import json
 
 import pytest
 
-import register_backbone  # noqa: F401 - registers "voxel-grid"
-from mono_hdr_plugin.bench import (BenchCurvesConfig, BenchPaperConfig, bench_curves, ordering_agreement, paper_specs,
-                                   write_paper_report)
+import register_backbone  # registers "voxel-grid"
+from mono_hdr_plugin.bench import runs
+from mono_hdr_plugin.bench.curves import BenchCurvesConfig, bench_curves
+from mono_hdr_plugin.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
+                                         seed_values, table_variants, tuning_trials, write_paper_report)
+from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
 
 
-class TestOrderingAgreement:
-    def test_counts_agreeing_pairs(self):
-        rows = [{"variant": "a", "hdr_psnr": 30.0, "paper_hdr_psnr": 38.0},
-                {"variant": "b", "hdr_psnr": 20.0, "paper_hdr_psnr": 19.0},
-                {"variant": "c", "hdr_psnr": 35.0, "paper_hdr_psnr": 33.0},
-                {"variant": "d", "hdr_psnr": 25.0, "paper_hdr_psnr": None}]
-        agree, total, disagreements = ordering_agreement(rows)
-        assert (agree, total) == (2, 3) and disagreements == ["a vs c"]
+@pytest.fixture
+def steps_of_50ms(monkeypatch):
+    """Every training step takes 0.05 s of the trainer's clock: time budgets become exact."""
+    import mono_hdr_plugin.train as train_module
+
+    clock = iter(0.05 * k for k in range(10**7))
+    monkeypatch.setattr(train_module.time, "perf_counter", lambda: next(clock))
 
 
-class TestPaperSpecs:
-    def test_every_paper_row_present(self):
-        tables = paper_specs(BenchPaperConfig())
-        assert [v for v, _, _ in tables["losses"]] == ["ldr", "hdr", "h2l", "ldr+hdr", "ldr+h2l", "hdr+h2l",
-                                                        "ldr+hdr+h2l"]
-        assert len(tables["ratios"]) == 12 and len(tables["converters"]) == 4 and len(tables["table1"]) == 4
-        assert {spec.backbone for _, spec, _ in tables["table1"]} == {"nerf", "gs"}
+def finished(spec: RunSpec, hdr: float, ldr: float = 20.0) -> dict:
+    """A stored row with only what the aggregation reads."""
+    final = {"hdr_psnr": hdr, "ldr_psnr": ldr, "hdr_ssim": 0.5, "ldr_ssim": 0.5, "hdr_psnr_gt_max": hdr - 5,
+             "train_seconds": 10.0, "steps": 100}
+    return {"key": spec.key, "status": "ok", "final": final, "curve": [final]}
 
-    def test_report_lists_paper_figures(self, tmp_path):
-        row = {"backbone": "gs", "variant": "mono", "hdr_psnr": 20.0, "hdr_ssim": 0.5, "ldr_psnr": 25.0,
-               "ldr_ssim": 0.8, "train_seconds": 10.0, "steps": 100, "scene": "demo", "paper_hdr_psnr": 38.57}
-        results = {"scene": "demo", "exposure_indices": [1], "facts": {"git_commit": "abc"}, "table1": [row]}
-        write_paper_report(results, tmp_path)
+
+class TestOrderingRule:
+    @pytest.mark.parametrize("ours_a,ours_b,verdict", [
+        ((30.0, 1.0), (20.0, 1.0), "reproduced"),   # gap 10 > spreads 2, paper's sign
+        ((21.0, 1.0), (20.0, 0.5), "tie"),          # gap 1 <= spreads 1.5
+        ((20.0, 1.0), (30.0, 1.0), "reversed"),     # gap 10 beyond the spreads, the other way
+        ((20.2, 0.0), (20.0, 0.0), "reproduced"),   # one seed: no spread, the sign decides
+    ])
+    def test_gap_against_spread(self, ours_a, ours_b, verdict):
+        assert ordering(ours_a, ours_b, paper_a=38.0, paper_b=19.0) == verdict
+
+    def test_orderings_skip_rows_without_paper_figure(self):
+        rows = [{"variant": "a", "paper_hdr_psnr": 38.0, "hdr_psnr": (30.0, 0.1)},
+                {"variant": "b", "paper_hdr_psnr": 19.0, "hdr_psnr": (35.0, 0.1)},
+                {"variant": "c", "paper_hdr_psnr": None, "hdr_psnr": (10.0, 0.1)}]
+        assert orderings(rows) == [("a", "b", "reversed")]
+
+
+class TestAggregation:
+    def test_mean_over_exposures_then_spread_over_seeds(self, tmp_path):
+        store = RowStore(tmp_path / "paper.json", {})
+        variant = Variant("table1", "3DGS mono", RunSpec("gs"), seeds=(0, 1), scenes=("demo",))
+        values = {(0, 0): 20.0, (0, 2): 22.0, (1, 0): 24.0, (1, 2): 26.0}  # (seed, exposure) -> HDR PSNR
+        for (seed, exposure), hdr in values.items():
+            store.rows[RunSpec("gs", scene="demo", exposure_index=exposure, seed=seed).key] = finished(
+                RunSpec("gs", scene="demo", exposure_index=exposure, seed=seed), hdr)
+        per_seed = seed_values(variant, store, (0, 2), "hdr_psnr")
+        assert per_seed == {0: 21.0, 1: 25.0}
+        mean, spread = mean_spread(per_seed)
+        assert mean == 23.0 and spread == pytest.approx(2 ** 0.5 * 2.0)  # stdev of 21 and 25
+
+    def test_a_seed_with_a_failed_run_is_left_out(self, tmp_path):
+        store = RowStore(tmp_path / "paper.json", {})
+        variant = Variant("table1", "x", RunSpec("gs"), seeds=(0, 1), scenes=("demo",))
+        ok = RunSpec("gs", scene="demo", seed=0)
+        store.rows[ok.key] = finished(ok, 20.0)
+        bad = RunSpec("gs", scene="demo", seed=1)
+        store.rows[bad.key] = {"key": bad.key, "status": "failed", "error": "boom"}
+        assert seed_values(variant, store, (1,), "hdr_psnr") == {0: 20.0}
+
+
+class TestPaperTables:
+    def test_every_paper_row_on_the_paper_backbones(self):
+        variants = table_variants(BenchPaperConfig())
+        by_table = {t: [v for v in variants if v.table == t] for t in ("table1", "converters", "losses", "ratios")}
+        assert [len(v) for v in by_table.values()] == [4, 4, 7, 12]
+        assert {v.spec.backbone for v in by_table["table1"]} == {"nerf", "gs"}
+        assert {v.spec.backbone for v in variants if v.table != "table1"} == {"gs"}
+        assert all(len(v.seeds) == 3 for v in by_table["table1"])
+
+    def test_every_method_gets_the_same_number_of_trials_off_the_reported_scenes(self):
+        trials = tuning_trials(BenchPaperConfig(tune_scene="demo"))
+        assert set(trials) == {("NeRF", "hdr-nerf"), ("NeRF", "mono"), ("3DGS", "hdr-gs"), ("3DGS", "mono")}
+        for row in ("NeRF", "3DGS"):
+            assert len({len(specs) for (r, _), specs in trials.items() if r == row}) == 1, row
+        gs_paths = {path for spec in trials[("3DGS", "mono")] for path, _ in spec.overrides}
+        assert {"backbone.lr_sh_dc", "backbone.lr_means", "hdr.converter_lr"} <= gs_paths
+        assert len(trials[("3DGS", "hdr-gs")]) == 8, "2 x 2 backbone rates times 2 converter rates"
+        assert all(spec.scene == "demo" for specs in trials.values() for spec in specs)
+
+    def test_best_recipe_is_the_highest_hdr_psnr(self, tmp_path):
+        store = RowStore(tmp_path / "paper.json", {})
+        specs = [RunSpec("gs", overrides=(("hdr.converter_lr", lr),)) for lr in (1e-4, 1e-3, 1e-2)]
+        for spec, hdr in zip(specs, (20.0, 25.0, 22.0)):
+            store.rows[spec.key] = finished(spec, hdr)
+        best = best_recipes({("3DGS", "mono"): specs}, store)[("3DGS", "mono")]
+        assert best["overrides"] == {"hdr.converter_lr": 1e-3} and best["tune_hdr_psnr"] == 25.0
+
+    def test_report_lists_means_spreads_paper_figures_and_plots(self, tmp_path):
+        config = BenchPaperConfig(out=tmp_path, scenes=("demo",), exposure_indices=(1,), seeds=(0, 1),
+                                  tables=("table1",))
+        variants = table_variants(config)
+        store = RowStore(tmp_path / "paper.json", {"budget": {"seconds": 60.0, "steps": None}})
+        for number, variant in enumerate(variants):
+            for spec in variant.runs((1,)):
+                store.rows[spec.key] = finished(spec, 20.0 + 5 * number + spec.seed)
+        write_paper_report(config, variants, {}, store)
         text = (tmp_path / "paper.md").read_text()
-        assert "38.57" in text and "20.00" in text
+        assert "35.30" in text and "20.50 +- 0.71" in text and "HDR PSNR demo" in text
+        assert (tmp_path / "paper_table1.png").stat().st_size > 0 and (tmp_path / "paper_curves.png").is_file()
+
+
+class TestExecution:
+    def test_resume_skips_finished_rows_and_failures_are_recorded(self, tmp_path, monkeypatch):
+        specs = [RunSpec("voxel-grid", seed=s) for s in range(3)]
+        store = RowStore(tmp_path / "rows.json", {"x": 1})
+        store.add(finished(specs[0], 20.0))
+        calls = []
+
+        def fake_run(spec, budget, out, threads=None):
+            calls.append(spec.seed)
+            if spec.seed == 2:
+                raise RuntimeError("out of memory")
+            return finished(spec, 21.0)
+
+        monkeypatch.setattr(runs, "run_row", fake_run)
+        execute(specs, RunBudget(steps=1), RowStore(tmp_path / "rows.json", {"x": 1}), tmp_path,
+                ExecutorConfig(retries=1))
+        assert calls == [1, 2, 2]  # seed 0 was done; seed 2 tried twice
+        rows = json.loads((tmp_path / "rows.json").read_text())["rows"]
+        assert rows[specs[2].key]["status"] == "failed" and "out of memory" in rows[specs[2].key]["error"]
+        assert rows[specs[0].key]["status"] == rows[specs[1].key]["status"] == "ok"
+
+    def test_other_settings_start_afresh(self, tmp_path):
+        RowStore(tmp_path / "rows.json", {"budget": 1}).add(finished(RunSpec("gs"), 20.0))
+        assert not RowStore(tmp_path / "rows.json", {"budget": 2}).rows
+
+    def test_ray_missing_says_how_to_install(self, tmp_path, monkeypatch):
+        monkeypatch.setitem(__import__("sys").modules, "ray", None)
+        with pytest.raises(ValueError, match=r"pip install -e '\.\[distributed\]'"):
+            execute([RunSpec("gs")], RunBudget(steps=1), RowStore(tmp_path / "r.json", {}), tmp_path,
+                    ExecutorConfig(executor="ray"))
 
 
 class TestBenchCurves:
-    def test_tiny_run_writes_json_table_and_plots(self, tmp_path):
+    def test_tiny_run_writes_json_table_and_plots(self, tmp_path, steps_of_50ms, monkeypatch):
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
         config = BenchCurvesConfig(out=tmp_path, backbones=("voxel-grid",), methods=("mono", "hdr-gs"),
-                                   budget_seconds=1.0, eval_points=2, max_eval_views=1)
+                                   budget_seconds=0.5, eval_points=2, max_eval_views=1)
         bench_curves(config)
         results = json.loads((tmp_path / "curves.json").read_text())
-        assert results["facts"]["git_commit"] and len(results["runs"]) == 2
-        run = results["runs"][0]
-        assert len(run["curve"]) == 2 and run["curve"][1]["train_seconds"] >= 1.0
-        assert run["fps_ldr"] > 0 and run["fps_ldr_hdr"] > 0 and run["peak_memory_mib"] > 0
-        for name in ("curves.md", "curves.png", "pareto.png"):
-            assert (tmp_path / name).stat().st_size > 0
+        assert results["facts"]["git_commit"] and len(results["rows"]) == 2
+        row = next(iter(results["rows"].values()))
+        assert [point["steps"] for point in row["curve"]] == [5, 10]
+        assert [point["train_seconds"] for point in row["curve"]] == pytest.approx([0.25, 0.5])
+        assert row["mean_step_seconds"] == pytest.approx(0.05) and row["fps_ldr_hdr"] > 0
+        text = (tmp_path / "curves.md").read_text()
+        assert "voxel-grid / hdr-gs" in text and "50.0" in text
+        assert (tmp_path / "curves.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+class TestRayExecutor:
+    def test_quick_paper_on_ray_matches_sequential(self, tmp_path):
+        from mono_hdr_plugin.bench.paper import bench_paper
+
+        import ray  # the slow suite installs the `distributed` extra (make test-slow)
+
+        sequential = bench_paper(BenchPaperConfig(out=tmp_path / "seq", quick=True,
+                                                  executor=ExecutorConfig(cpus_per_run=1)))
+        try:
+            distributed = bench_paper(BenchPaperConfig(out=tmp_path / "ray", quick=True,
+                                                       executor=ExecutorConfig(executor="ray", cpus_per_run=1)))
+        finally:
+            ray.shutdown()
+        assert sequential["rows"].keys() == distributed["rows"].keys() and len(sequential["rows"]) == 8
+        for key, row in sequential["rows"].items():
+            ours, theirs = row["final"], distributed["rows"][key]["final"]
+            assert row["status"] == distributed["rows"][key]["status"] == "ok"
+            assert [ours[m] for m in ("steps", "hdr_psnr", "ldr_psnr")] == [theirs[m] for m in ("steps", "hdr_psnr",
+                                                                                               "ldr_psnr")], key
 
 
 @pytest.mark.slow
@@ -56,7 +188,7 @@ class TestCompareBackbonesExample:
         import compare_backbones
 
         results = compare_backbones.compare("demo", seconds=3.0, out=tmp_path, eval_points=1, max_eval_views=1)
-        assert [r["backbone"] for r in results] == ["nerf", "gs"]
-        assert all(r["curve"][-1]["hdr_psnr"] > 0 for r in results)
+        assert [r["spec"]["backbone"] for r in results] == ["nerf", "gs"]
+        assert all(r["final"]["hdr_psnr"] > 0 for r in results)
         compare_backbones.plot(results, tmp_path / "plot.png")
         assert (tmp_path / "plot.png").stat().st_size > 0

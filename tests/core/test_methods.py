@@ -6,8 +6,9 @@ import pytest
 import torch
 
 from mono_hdr_plugin.backbone import LdrFeatures
-from mono_hdr_plugin.methods import (METHODS, HdrGsBaseline, HdrNerfBaseline, MethodConfig, MethodOutput, MonoHDR,
-                                     Targets, build_method)
+from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfig, MethodOutput, MonoHDR, Targets,
+                                     build_method, method_names)
+from mono_hdr_plugin.registry import RegistryError
 from mono_hdr_plugin.metrics import normalise_hdr
 
 
@@ -157,7 +158,8 @@ class TestSaturatedPhotos:
 
 
 def test_every_method_builds():
-    for name in METHODS:
+    assert method_names()[:6] == ["mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs"]
+    for name in method_names():
         assert build_method(MethodConfig(method=name), "mse").config.method == name
-    with pytest.raises(ValueError, match="unknown method"):
+    with pytest.raises(RegistryError, match="no method named 'nope'; available: mono, mlp-l2h"):
         build_method(MethodConfig(method="nope"), "mse")

@@ -1,3 +1,5 @@
+"""The plugin registries: one mechanism (decorator + entry points) for backbones, methods, layouts, scenes."""
+
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint
 
@@ -5,7 +7,10 @@ import pytest
 
 from mono_hdr_plugin import registry
 from mono_hdr_plugin.backbone import Backbone
-from mono_hdr_plugin.registry import BackboneRegistryError, register_backbone
+from mono_hdr_plugin.data.layouts import LAYOUTS
+from mono_hdr_plugin.data.sources import SCENE_SOURCES
+from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.registry import BACKBONES, PluginRegistry, RegistryError
 
 
 @dataclass
@@ -17,72 +22,100 @@ class TinyBackbone(Backbone):
     config_class = TinyConfig
 
 
-@pytest.fixture
-def clean_registry(monkeypatch):
-    monkeypatch.setattr(registry, "_REGISTRY", {})
-    monkeypatch.setattr(registry, "_BROKEN_PLUGINS", {})
-    monkeypatch.setattr(registry, "_entry_points_loaded", False)
-
-
 def fake_entry_points(*points):
     return lambda group: [EntryPoint(name, value, group) for name, value in points]
 
 
-class TestRegisterBackbone:
-    def test_decorator_registers(self, clean_registry, monkeypatch):
-        monkeypatch.setattr(registry, "entry_points", fake_entry_points())
-        register_backbone("tiny")(TinyBackbone)
-        assert registry.get_backbone("tiny") is TinyBackbone
-        assert registry.available_backbones()["tiny"].source.startswith("python: ")
+@pytest.fixture
+def backbones(monkeypatch):
+    """A fresh backbone registry with the real validation and no installed entry points."""
+    fresh = PluginRegistry("backbone", "test.backbones", registry._validate_backbone)
+    monkeypatch.setattr(registry, "entry_points", fake_entry_points())
+    return fresh
 
-    def test_duplicate_name_is_an_error(self, clean_registry):
-        register_backbone("tiny")(TinyBackbone)
+
+class TestRegisterBackbone:
+    def test_decorator_registers(self, backbones):
+        backbones.register("tiny")(TinyBackbone)
+        assert backbones.get("tiny") is TinyBackbone
+        assert backbones.available()["tiny"].source.startswith("python: ")
+
+    def test_duplicate_name_is_an_error(self, backbones):
+        backbones.register("tiny")(TinyBackbone)
 
         class Other(TinyBackbone):
             pass
 
-        with pytest.raises(BackboneRegistryError, match="'tiny' is already registered"):
-            register_backbone("tiny")(Other)
+        with pytest.raises(RegistryError, match="backbone name 'tiny' is already registered"):
+            backbones.register("tiny")(Other)
 
-    def test_re_registering_same_class_is_fine(self, clean_registry):
-        register_backbone("tiny")(TinyBackbone)
-        register_backbone("tiny")(TinyBackbone)
+    def test_re_registering_same_class_is_fine(self, backbones):
+        backbones.register("tiny")(TinyBackbone)
+        backbones.register("tiny")(TinyBackbone)
+        assert list(backbones.available()) == ["tiny"]
 
-    def test_rejects_non_backbone(self, clean_registry):
-        with pytest.raises(BackboneRegistryError, match="not a subclass"):
-            register_backbone("x")(dict)
+    def test_rejects_non_backbone(self, backbones):
+        with pytest.raises(RegistryError, match="not a subclass"):
+            backbones.register("x")(dict)
 
-    def test_requires_config_class(self, clean_registry):
+    def test_requires_config_class(self, backbones):
         class NoConfig(Backbone):
             pass
 
-        with pytest.raises(BackboneRegistryError, match="config_class"):
-            register_backbone("x")(NoConfig)
+        with pytest.raises(RegistryError, match="config_class"):
+            backbones.register("x")(NoConfig)
 
-    def test_unknown_name_lists_available(self, clean_registry, monkeypatch):
-        monkeypatch.setattr(registry, "entry_points", fake_entry_points())
-        register_backbone("tiny")(TinyBackbone)
-        with pytest.raises(BackboneRegistryError, match="available: tiny"):
-            registry.get_backbone("missing")
+    def test_unknown_name_lists_available(self, backbones):
+        backbones.register("tiny")(TinyBackbone)
+        with pytest.raises(RegistryError, match="no backbone named 'missing'; available: tiny"):
+            backbones.get("missing")
+
+    def test_keeps_registration_order(self, backbones):
+        class Second(TinyBackbone):
+            pass
+
+        backbones.register("zeta")(TinyBackbone)
+        backbones.register("alpha")(Second)
+        assert list(backbones.available()) == ["zeta", "alpha"]
 
 
 class TestEntryPoints:
-    def test_discovers_entry_point(self, clean_registry, monkeypatch):
+    def test_discovers_entry_point(self, monkeypatch):
         monkeypatch.setattr(registry, "entry_points", fake_entry_points(("tiny-ep", f"{__name__}:TinyBackbone")))
-        entry = registry.available_backbones()["tiny-ep"]
-        assert entry.backbone_class is TinyBackbone and entry.source.startswith("entry point: ")
+        fresh = PluginRegistry("backbone", "test.backbones", registry._validate_backbone)
+        entry = fresh.available()["tiny-ep"]
+        assert entry.plugin is TinyBackbone and entry.source.startswith("entry point: ")
 
-    def test_broken_plugin_named_and_others_survive(self, clean_registry, monkeypatch):
+    def test_broken_plugin_named_and_others_survive(self, monkeypatch):
         monkeypatch.setattr(registry, "entry_points", fake_entry_points(
             ("broken", "no_such_module_for_mono_hdr:Thing"), ("tiny-ep", f"{__name__}:TinyBackbone")))
-        with pytest.warns(UserWarning, match="'broken'.*ModuleNotFoundError"):
-            backbones = registry.available_backbones()
-        assert "tiny-ep" in backbones and "broken" not in backbones
-        assert "ModuleNotFoundError" in registry.broken_plugins()["broken"]
-        with pytest.raises(BackboneRegistryError, match="installed but broken"):
-            registry.get_backbone("broken")
+        fresh = PluginRegistry("backbone", "test.backbones", registry._validate_backbone)
+        with pytest.warns(UserWarning, match="backbone plugin 'broken'.*ModuleNotFoundError"):
+            available = fresh.available()
+        assert "tiny-ep" in available and "broken" not in available
+        assert "ModuleNotFoundError" in fresh.broken()["broken"]
+        with pytest.raises(RegistryError, match="backbone 'broken' is installed but broken"):
+            fresh.get("broken")
+
+    def test_entry_point_of_the_wrong_kind_is_reported_broken(self, monkeypatch):
+        monkeypatch.setattr(registry, "entry_points", fake_entry_points(("odd", f"{__name__}:TinyConfig")))
+        fresh = PluginRegistry("backbone", "test.backbones", registry._validate_backbone)
+        with pytest.warns(UserWarning, match="'odd'.*not a subclass"):
+            assert fresh.available() == {}
 
 
-def test_builtin_entry_points_are_declared():
-    names = {ep.name for ep in registry.entry_points(group=registry.ENTRY_POINT_GROUP)}
-    assert {"nerf", "gs"} <= names
+class TestBuiltinPlugins:
+    def test_backbones_come_through_entry_points(self):
+        names = {ep.name for ep in registry.entry_points(group=BACKBONES.entry_point_group)}
+        assert {"nerf", "gs"} <= names
+        assert BACKBONES.available()["gs"].source.startswith("entry point: backbones.gs:GaussianBackbone")
+
+    def test_methods_layouts_and_studio(self):
+        assert list(METHODS.available())[:6] == ["mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs"]
+        assert list(LAYOUTS.available())[:3] == ["hdr-gs", "hdr-nerf-synthetic", "hdr-nerf-real"]
+        assert "demo" in SCENE_SOURCES.get("studio").names()
+
+    @pytest.mark.parametrize("kind_registry,bad", [(METHODS, dict), (LAYOUTS, dict), (SCENE_SOURCES, object())])
+    def test_each_kind_refuses_other_objects(self, kind_registry, bad):
+        with pytest.raises(RegistryError, match=kind_registry.kind):
+            kind_registry.register("bad")(bad)

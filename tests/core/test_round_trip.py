@@ -16,9 +16,10 @@ from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.cli import main
 from mono_hdr_plugin.data.io import read_exr
-from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.render import render_checkpoint
-from mono_hdr_plugin.train import Trainer, load_trained, train_config_for
+from mono_hdr_plugin.evaluation import evaluate
+from mono_hdr_plugin.train import Trainer, load_pipeline, train_config_for
 
 BACKBONE_CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),
@@ -45,7 +46,7 @@ def images(folder, pattern: str) -> dict[str, np.ndarray]:
     return {path.name: read_exr(path) for path in sorted(folder.glob(pattern))}
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", method_names())
 @pytest.mark.parametrize("case", sorted(BACKBONE_CONFIGS))
 class TestSavedModelRendersAsTrained:
     def test_eval_and_render_of_checkpoint_equal_training(self, tmp_path, voxel_scene, case, method):
@@ -54,9 +55,8 @@ class TestSavedModelRendersAsTrained:
         trained_renders = images(tmp_path / "run" / "renders", "*_hdr.exr")
         assert len(trained_renders) == 2
 
-        restored, _ = load_trained(checkpoint, scene=voxel_scene)
-        restored.config.out = tmp_path / "eval"
-        again = restored.evaluate(save_renders=True)
+        run = load_pipeline(checkpoint, scene=voxel_scene)
+        again = evaluate(run.pipeline, voxel_scene, max_eval_views=2, render_dir=tmp_path / "eval" / "renders")
         for key in METRIC_KEYS:
             assert again[key] == pytest.approx(metrics[key], rel=1e-6, abs=1e-9), key
         eval_renders = images(tmp_path / "eval" / "renders", "*_hdr.exr")

@@ -8,8 +8,9 @@ import torch
 
 import register_backbone  # examples/, put on sys.path by conftest
 from mono_hdr_plugin.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.methods import METHODS
-from mono_hdr_plugin.train import Trainer, hdr_supervised_views, load_trained, parse_view_ratio, train_config_for
+from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.evaluation import evaluate
+from mono_hdr_plugin.train import Trainer, hdr_supervised_views, load_pipeline, parse_view_ratio, train_config_for
 
 
 def make_config(tmp_path, backbone_config, **overrides):
@@ -35,7 +36,7 @@ class TestHdrViewRatio:
 
 
 class TestTwoStepsOfEveryMethod:
-    @pytest.mark.parametrize("method", METHODS)
+    @pytest.mark.parametrize("method", method_names())
     def test_two_steps(self, tmp_path, voxel_scene, voxel_backbone_config, method):
         trainer = Trainer(make_config(tmp_path, voxel_backbone_config, method=method, max_steps=2), "voxel-grid",
                           voxel_scene)
@@ -117,13 +118,13 @@ class TestEndToEnd:
             assert key in written
         assert written["steps"] == 150 and written["backbone"] == "voxel-grid"
 
-    def test_load_trained_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
+    def test_load_pipeline_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
         config = make_config(tmp_path, voxel_backbone_config, max_steps=5)
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         metrics = trainer.train()
-        restored, _ = load_trained(trainer.checkpoint_path(), scene=voxel_scene)
-        assert restored.step == 5
-        assert restored.evaluate()["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
+        run = load_pipeline(trainer.checkpoint_path(), scene=voxel_scene)
+        assert run.payload["step"] == 5 and not run.pipeline.training
+        assert evaluate(run.pipeline, run.scene)["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
 
 
 class TestSceneExtent:

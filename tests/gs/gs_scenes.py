@@ -1,4 +1,4 @@
-"""Scenes shared by the Gaussian tests: random, hard-case (REFERENCE.md section 5), cameras."""
+"""Scenes shared by the Gaussian tests: random, hard-case (docs/robustness.md), cameras."""
 
 import torch
 
@@ -25,7 +25,7 @@ def random_gaussians(n: int, seed: int = 0, channels: int = 3, dtype=torch.float
 
 
 def hard_gaussians(camera: Camera, channels: int = 3) -> dict:
-    """REFERENCE.md section 5: every numerically awkward Gaussian we know, plus ordinary ones."""
+    """docs/robustness.md: every numerically awkward Gaussian we know, plus ordinary ones."""
     base = random_gaussians(40, seed=7, channels=channels)
     forward = camera.c2w[:3, 2]
     eye = camera.center

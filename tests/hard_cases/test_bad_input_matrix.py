@@ -20,7 +20,7 @@ from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_image
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.registry import BackboneRegistryError, get_backbone
+from mono_hdr_plugin.registry import RegistryError, get_backbone
 from mono_hdr_plugin.train import build_trainer
 
 
@@ -160,16 +160,20 @@ def test_fixed_protocol_without_exposure(tmp_path, data):
     (["train", "voxel-grid", "--layout", "bogus"], "bogus"),
     (["train", "voxel-grid", "--max-steps", "many"], "many"),
 ])
-def test_unparseable_cli_value_exits_2_naming_it(argv, named, capsys):
+def test_unparseable_cli_value_exits_2_naming_it(argv, named, capsys, monkeypatch):
+    from mono_hdr_plugin import cli
+
+    monkeypatch.setattr("sys.argv", ["mono-hdr", *argv])
+    monkeypatch.delenv("MONO_HDR_DEBUG", raising=False)
     with pytest.raises(SystemExit) as exit_info:
-        main(argv)
+        cli.run()
     assert exit_info.value.code == 2
     captured = capsys.readouterr()
     assert named in captured.out + captured.err
 
 
 def test_unknown_backbone_through_the_registry():
-    with pytest.raises(BackboneRegistryError, match="no backbone named 'nope'; available: .*gs.*nerf"):
+    with pytest.raises(RegistryError, match="no backbone named 'nope'; available: .*gs.*nerf"):
         get_backbone("nope")
 
 

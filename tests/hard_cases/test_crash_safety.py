@@ -1,6 +1,6 @@
 """Crash safety: a training run killed with SIGKILL at a random moment leaves its last checkpoint
 loadable under the real name, and `--resume` continues from it. Checkpoints are written to a
-temporary file and renamed (REFERENCE.md section 5), so a half-written file never has the name."""
+temporary file and renamed (docs/robustness.md), so a half-written file never has the name."""
 
 import os
 import random
@@ -70,7 +70,7 @@ def kill_at_random_moments(tmp_path: Path, data: Path, kills: int, seed: int) ->
         assert all(name.startswith(".latest.tmp-") for name in leftovers), f"{context}: {leftovers}"
         payload = load_checkpoint(latest)  # raises CheckpointError if half-written
         assert payload["step"] >= max(last_step, 1), f"{context}: step went from {last_step} to {payload['step']}"
-        assert all(torch.isfinite(t).all() for t in payload["backbone"].values()), context
+        assert all(torch.isfinite(t).all() for t in payload["pipeline"].values()), context
         last_step = payload["step"]
     # the final run resumes from the last checkpoint and finishes
     finish = last_step + 3

@@ -74,7 +74,7 @@ def test_diverged_run_keeps_last_good_checkpoint_loadable_and_resumable(tmp_path
     assert str(trainer.checkpoint_path()) in message and "lower the learning rates" in message
     payload = load_checkpoint(trainer.checkpoint_path())
     assert payload["step"] == 10  # the last multiple of checkpoint_every before the failures
-    for name, tensor in payload["backbone"].items():
+    for name, tensor in payload["pipeline"].items():
         assert torch.isfinite(tensor).all(), name
     config = trainer.config
     config.resume = True

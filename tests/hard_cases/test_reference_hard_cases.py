@@ -1,4 +1,4 @@
-"""REFERENCE.md section 5, one named test per numerical hard case, through the public APIs of
+"""docs/robustness.md, one named test per numerical hard case, through the public APIs of
 the rasteriser (backbones.gs), the volume renderer (backbones.nerf), the converters and the
 metrics. Data, checkpoint and CLI cases are in test_bad_input_matrix.py / test_crash_safety.py.
 """
@@ -15,12 +15,12 @@ from backbones.nerf.rendering import compositing_weights, make_composite
 from backbones.nerf.sampling import ray_segments, sample_pdf
 from hard_scenes import backbone_config, make_scene
 from mono_hdr_plugin.cameras import Camera, look_at
-from mono_hdr_plugin.checkpoints import write_json
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, write_exr
 from mono_hdr_plugin.methods import MethodOutput
 from mono_hdr_plugin.metrics import hdr_metrics, normalise_hdr, psnr
-from mono_hdr_plugin.train import save_view_renders
+from mono_hdr_plugin.evaluation import save_view_renders
 
 BACKENDS = ("kernel", "torch")
 SIZE = 24

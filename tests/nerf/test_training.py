@@ -8,8 +8,8 @@ import torch
 from backbones.nerf import NerfBackbone, NerfConfig
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.methods import METHODS
-from mono_hdr_plugin.train import Trainer, render_full, train_config_for
+from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.train import Trainer, train_config_for
 from nerf_scenes import tiny_config
 
 
@@ -23,7 +23,7 @@ def nerf_trainer(tmp_path, scene, field: str, method: str) -> Trainer:
 
 class TestTwoStepsOfEveryMethod:
     @pytest.mark.parametrize("field", ["paper", "fast"])
-    @pytest.mark.parametrize("method", METHODS)
+    @pytest.mark.parametrize("method", method_names())
     def test_two_steps(self, tmp_path, voxel_scene, field, method):
         trainer = nerf_trainer(tmp_path, voxel_scene, field, method)
         before = [p.detach().clone() for p in trainer.backbone.parameters()]
@@ -37,8 +37,7 @@ class TestTwoStepsOfEveryMethod:
         trainer = nerf_trainer(tmp_path, voxel_scene, "fast", "mono")
         trainer.backbone.render_chunk = 50
         view = voxel_scene.test[0]
-        with torch.no_grad():
-            output = render_full(trainer.backbone, trainer.method, view.camera, view.exposure)
+        output = trainer.pipeline.render(view.camera, view.exposure)
         assert output.ldr.shape == output.hdr.shape == (view.camera.height, view.camera.width, 3)
         assert torch.isfinite(output.hdr).all()
 

@@ -119,10 +119,10 @@ class TestProcessData:
 
 class TestTrainOnResult:
     def test_a_few_steps(self, processed, tmp_path):
-        from mono_hdr_plugin.registry import available_backbones
+        from mono_hdr_plugin.registry import BACKBONES
         from mono_hdr_plugin.train import Trainer, train_config_for
 
-        if "gs" in available_backbones():
+        if "gs" in BACKBONES.available():
             from backbones.gs import DefaultStrategy, GaussianConfig
 
             name, backbone_config = "gs", GaussianConfig(sh_degree=0, strategy=DefaultStrategy(refine_start=10**9))

@@ -1,5 +1,6 @@
-"""The on-disk dataset layouts of HDR-NeRF and HDR-GS (DATASETS.md): detect, read, write.
+"""Dataset layouts on disk (docs/datasets.md): detect, read, write; plugins add their own.
 
+The built-in ones are the published layouts of HDR-GS (COLMAP) and HDR-NeRF (synthetic, real).
 Every reader returns a CapturedScene with OpenCV camera-to-world cameras; every writer takes one.
 """
 
@@ -7,36 +8,48 @@ from pathlib import Path
 
 from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.layouts import hdr_gs, hdr_nerf_real, hdr_nerf_synthetic
+# Imported in detection order: each module registers its layout.
+from mono_hdr_plugin.data.layouts import hdr_gs  # noqa: F401, I001
+from mono_hdr_plugin.data.layouts import hdr_nerf_synthetic  # noqa: F401
+from mono_hdr_plugin.data.layouts import hdr_nerf_real  # noqa: F401
+from mono_hdr_plugin.data.layouts.base import LAYOUTS, DatasetLayout, register_layout
 
-# In detection order: the official Mono-HDR-GS code takes the COLMAP path first when sparse/ exists.
-LAYOUTS = {"hdr-gs": hdr_gs, "hdr-nerf-synthetic": hdr_nerf_synthetic, "hdr-nerf-real": hdr_nerf_real}
+__all__ = ["LAYOUTS", "DatasetLayout", "detect_layout", "read_layout", "register_layout", "writable_layouts",
+           "write_layout"]
 
 
 def detect_layout(folder: Path) -> str:
-    """The layout of `folder`, from the files present."""
-    for name, module in LAYOUTS.items():
-        if module.detect(folder):
+    """The layout of `folder`, from the files present (layouts are tried in registration order:
+    the official Mono-HDR-GS code takes the COLMAP path first when sparse/ exists)."""
+    layouts = LAYOUTS.available()
+    for name, entry in layouts.items():
+        if entry.plugin.detect(folder):
             return name
-    raise DatasetError(f"{folder}: unknown dataset layout. Expected one of: sparse/0/ (hdr-gs), "
-                       "transforms_train.json (hdr-nerf-synthetic), poses_bounds_exps.npy (hdr-nerf-real). "
-                       "Convert your photos with `mono-hdr process-data`, or see DATASETS.md")
+    expected = "; ".join(f"{name}: {entry.plugin.description}" for name, entry in layouts.items())
+    raise DatasetError(f"{folder}: unknown dataset layout. Expected one of these ({expected}). Convert your "
+                       "photos with `mono-hdr process-data`; the layouts are described in docs/datasets.md")
 
 
 def read_layout(folder: str | Path, layout: str = "auto") -> CapturedScene:
-    """Read a dataset folder; `layout` is one of LAYOUTS or "auto"."""
+    """Read a dataset folder; `layout` is a registered layout name (`mono-hdr layouts`) or "auto"."""
     folder = Path(folder)
     if not folder.is_dir():
         raise missing(folder, "pass --data a dataset folder")
     if layout == "auto":
         layout = detect_layout(folder)
-    if layout not in LAYOUTS:
-        raise DatasetError(f"unknown --layout {layout!r}; choose auto or one of {sorted(LAYOUTS)}")
-    return LAYOUTS[layout].read(folder)
+    layouts = LAYOUTS.available()
+    if layout not in layouts:
+        raise DatasetError(f"unknown --layout {layout!r}; choose auto or one of {', '.join(layouts)}")
+    return layouts[layout].plugin.read(folder)
+
+
+def writable_layouts() -> list[str]:
+    """Registered layouts that can be written (targets of `mono-hdr synth`)."""
+    return [name for name, entry in LAYOUTS.available().items() if entry.plugin.writable]
 
 
 def write_layout(scene: CapturedScene, folder: str | Path, layout: str, bits: int = 8) -> None:
     """Write every photo of `scene` (and its HDR ground truth where the layout has a place for it)."""
-    if layout not in LAYOUTS:
-        raise DatasetError(f"unknown layout {layout!r}; choose one of {sorted(LAYOUTS)}")
-    LAYOUTS[layout].write(scene, Path(folder), bits=bits)
+    if layout not in writable_layouts():
+        raise DatasetError(f"cannot write layout {layout!r}; choose one of {', '.join(writable_layouts())}")
+    LAYOUTS.get(layout).write(scene, Path(folder), bits=bits)

@@ -83,10 +83,3 @@ def split_view_exposure(name: str) -> tuple[str, int] | None:
     """`<view>_<e>.<ext>` -> (view, e), or None for any other file name."""
     match = re.fullmatch(r"(.+)_(\d+)\.[A-Za-z]+", name)
     return (match.group(1), int(match.group(2))) if match else None
-
-
-def write_json(path: Path, value) -> None:
-    from mono_hdr_plugin.data.io import atomic_path
-
-    with atomic_path(path) as temporary:
-        temporary.write_text(json.dumps(value, indent=2))

@@ -1,4 +1,4 @@
-"""HDR-GS COLMAP layout (DATASETS.md section 3), read and written with pycolmap.
+"""HDR-GS COLMAP layout (docs/datasets.md), read and written with pycolmap.
 
     sparse/0/{cameras,images,points3D}.bin|.txt   COLMAP model, one image entry per view
     images/ (or input_images/)                    <view>_<e>.<ext>, e = 0..4 (t1..t5)
@@ -23,10 +23,11 @@ from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, Shot, bounds_from_cameras,
                                            bounds_from_points)
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_png
+from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
+from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
                                                  image_size, load_json, natural_key,
-                                                 split_view_exposure, write_json)
+                                                 split_view_exposure)
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 EXPOSURES_FILE = "exposures.json"
@@ -211,3 +212,12 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
             exposures[name] = shot.exposure
     write_json(folder / EXPOSURES_FILE, exposures)
     _write_model(scene, folder / MODEL_FOLDER)
+
+
+@register_layout("hdr-gs")
+class HdrGsLayout(DatasetLayout):
+    description = "COLMAP sparse/0 + images/ + exr/ + exposures.json (HDR-GS, Mono-HDR-GS)"
+    writable = True
+    detect = staticmethod(detect)
+    read = staticmethod(read)
+    write = staticmethod(write)

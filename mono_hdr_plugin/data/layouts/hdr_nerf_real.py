@@ -1,4 +1,4 @@
-"""HDR-NeRF real layout (DATASETS.md section 2), read and written.
+"""HDR-NeRF real layout (docs/datasets.md), read and written.
 
     poses_bounds_exps.npy   [N, 18]: LLFF [R | t | hwf] (3x5, axes down/right/back), near, far,
                             exposure seconds; rows follow the string-sorted input_images
@@ -17,6 +17,7 @@ import torch
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import atomic_path, read_image, write_png
+from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.common import (IMAGE_SUFFIXES, camera_from, check_exposure, check_finite,
                                                  check_one_size, image_size, natural_key,
                                                  split_view_exposure)
@@ -110,3 +111,12 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
     rows = np.array([row for _, row in sorted(entries)])
     with atomic_path(folder / POSES_FILE) as temporary, open(temporary, "wb") as handle:
         np.save(handle, rows)
+
+
+@register_layout("hdr-nerf-real")
+class HdrNerfRealLayout(DatasetLayout):
+    description = "poses_bounds_exps.npy + input_images/ (HDR-NeRF real, LLFF)"
+    writable = True
+    detect = staticmethod(detect)
+    read = staticmethod(read)
+    write = staticmethod(write)

@@ -1,4 +1,4 @@
-"""HDR-NeRF synthetic layout (DATASETS.md section 1), read and written.
+"""HDR-NeRF synthetic layout (docs/datasets.md), read and written.
 
     transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
                                    transform_matrix (OpenGL camera-to-world)
@@ -16,9 +16,10 @@ import torch
 from mono_hdr_plugin.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_png
+from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
+from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
-                                                 image_size, load_json, write_json)
+                                                 image_size, load_json)
 
 SPLITS = ("train", "test")
 MAX_EXPOSURES = 5
@@ -130,3 +131,12 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
             frames.append({"file_path": file_path, "transform_matrix": c2w_gl.tolist()})
         write_json(folder / f"transforms_{split}.json", {"camera_angle_x": angle, "frames": frames})
         write_json(folder / f"exposure_{split}.json", exposures)
+
+
+@register_layout("hdr-nerf-synthetic")
+class HdrNerfSyntheticLayout(DatasetLayout):
+    description = "transforms_*.json + exposure_*.json + <frame>_<e>.png + *_hdr/ EXR (HDR-NeRF synthetic)"
+    writable = True
+    detect = staticmethod(detect)
+    read = staticmethod(read)
+    write = staticmethod(write)

@@ -1,0 +1,34 @@
+"""Shared pieces of the benchmark reports: number formatting, labels, matplotlib set-up."""
+
+import contextlib
+import math
+from collections.abc import Iterator
+from typing import Any, Callable
+
+
+def fmt(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def label(spec: dict[str, Any]) -> str:
+    """backbone[-preset] / method of a row's spec."""
+    return f"{spec['backbone']}{'-' + spec['preset'] if spec.get('preset') else ''} / {spec['method']}"
+
+
+def pyplot():
+    """matplotlib's pyplot on the file-only Agg backend (no display on these machines)."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    return plt
+
+
+@contextlib.contextmanager
+def report_on_exit(write_report: Callable[[], None]) -> Iterator[None]:
+    """Write the Markdown/plots of the finished rows even when the run is interrupted."""
+    try:
+        yield
+    finally:
+        write_report()

@@ -1,0 +1,104 @@
+"""Test-view metrics of a pipeline, and the EXR/PNG files a render of a view writes."""
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.methods import MethodOutput
+from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, normalise_hdr, psnr,
+                                     ssim, tone_mapped_pair)
+from mono_hdr_plugin.pipeline import Pipeline
+
+
+def first_per_camera(views: list[View]) -> list[View]:
+    """One view per camera pose (view_id), the first of its exposures: HDR is rendered once per camera."""
+    seen: set[int] = set()
+    return [view for view in views if not (view.view_id in seen or seen.add(view.view_id))]
+
+
+def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None) -> list[View]:
+    """Test views at exposures the method can render, from the first `max_eval_views` cameras."""
+    train_exposures = set(scene.train_exposures)
+    views = [v for v in scene.test if pipeline.method.renders_any_exposure or v.exposure in train_exposures]
+    if not views:
+        raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
+                         f"({sorted(train_exposures)}) for method {pipeline.method_name!r}")
+    view_ids = set(sorted({v.view_id for v in views})[:max_eval_views])
+    return [v for v in views if v.view_id in view_ids]
+
+
+@torch.no_grad()
+def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None,
+             render_dir: Path | None = None) -> dict[str, Any]:
+    """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
+
+    The headline LDR figures average the exposures the model was trained at (t1/t3/t5); HDR
+    figures are mu-law with both normalisations (docs/method.md). With `render_dir`, each
+    camera's renders are written there (`save_view_renders`).
+    """
+    views = evaluation_views(pipeline, scene, max_eval_views)
+    try:
+        lpips_model, lpips_skipped = load_lpips(), None
+    except LpipsUnavailable as reason:
+        lpips_model, lpips_skipped = None, str(reason)
+    hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
+    per_exposure: dict[float, list[tuple[float, float]]] = {}
+    lpips_rows: dict[str, list[float]] = {"lpips_ldr": [], "lpips_hdr": []}
+    hdr_rows: list[dict[str, float]] = []
+    with pipeline.evaluating():
+        for view in views:
+            output = pipeline.render(view.camera, view.exposure)
+            ldr = output.ldr.clamp(0.0, 1.0)
+            per_exposure.setdefault(view.exposure, []).append(
+                (psnr(ldr, view.image), ssim(ldr.double(), view.image.double()).item()))
+            if lpips_model is not None:
+                lpips_rows["lpips_ldr"].append(lpips_distance(lpips_model, ldr, view.image))
+            if id(view) in hdr_views:
+                hdr_rows.append(hdr_metrics(output.hdr, view.hdr))
+                if lpips_model is not None:
+                    lpips_rows["lpips_hdr"].append(
+                        lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max")))
+                if render_dir is not None:
+                    save_view_renders(render_dir, view, output)
+    train_exposures = set(scene.train_exposures)
+    headline = [e for e in per_exposure if e in train_exposures] or list(per_exposure)
+    ldr_psnr_by_exposure = {f"{e:g}": _mean([p for p, _ in rows]) for e, rows in sorted(per_exposure.items())}
+    ldr_ssim_by_exposure = {f"{e:g}": _mean([s for _, s in rows]) for e, rows in sorted(per_exposure.items())}
+    metrics: dict[str, Any] = {
+        "backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name,
+        "ldr_psnr": _mean([ldr_psnr_by_exposure[f"{e:g}"] for e in headline]),
+        "ldr_ssim": _mean([ldr_ssim_by_exposure[f"{e:g}"] for e in headline]),
+        "ldr_psnr_per_exposure": ldr_psnr_by_exposure,
+        "ldr_ssim_per_exposure": ldr_ssim_by_exposure,
+        "test_views": len({v.view_id for v in views}),
+    }
+    for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"):
+        metrics[key] = _mean([row[key] for row in hdr_rows]) if hdr_rows else None
+    for key, values in lpips_rows.items():
+        metrics[key] = _mean(values) if values else None
+    if lpips_skipped:
+        metrics["lpips_skipped"] = lpips_skipped
+    return metrics
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values) if values else math.nan
+
+
+def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> list[Path]:
+    """save_hdr_renders plus <stem>_ldr.png, the LDR render at the view's exposure."""
+    path = render_dir / f"{view.stem}_ldr.png"
+    write_png(path, output.ldr.clamp(0, 1).numpy())
+    return [*save_hdr_renders(render_dir, view, output.hdr), path]
+
+
+def save_hdr_renders(render_dir: Path, view: View, hdr: torch.Tensor) -> list[Path]:
+    """<stem>_hdr.exr (linear) and <stem>_hdr_mulaw.png (tone-mapped for display) of an HDR render."""
+    paths = [render_dir / f"{view.stem}_hdr.exr", render_dir / f"{view.stem}_hdr_mulaw.png"]
+    write_exr(paths[0], hdr.float().numpy())
+    write_png(paths[1], normalise_hdr(hdr).numpy())
+    return paths

@@ -1,0 +1,45 @@
+"""The pipeline refactor changed no behaviour: 200-step runs give the metrics they gave before.
+
+The figures below were produced by commit 27fdab5, before the Pipeline / one-training-loop
+refactor, with exactly this configuration (`seed=3`, 2 torch threads). A change that alters
+training on purpose (a new kernel's summation order, a new default) updates them in its own
+commit, saying why; a refactor never does.
+"""
+
+import pytest
+import torch
+
+import register_backbone
+from backbones.gs import GaussianConfig
+from backbones.nerf import GridFieldConfig, NerfConfig
+from mono_hdr_plugin.train import Trainer, train_config_for
+
+CONFIGS = {
+    "gs": lambda: GaussianConfig(random_init_points=400),
+    "nerf": lambda: NerfConfig(field="fast", fast=GridFieldConfig(
+        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, uniform_samples=8, importance_samples=8,
+        proposal_samples=16, density_grid_resolution=8, rays_per_step=64)),
+    "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
+}
+PINNED = {  # (backbone, method): (HDR PSNR, LDR PSNR) after 200 steps
+    ("gs", "mono"): (17.628346401965835, 29.224094726198068),
+    ("gs", "hdr-gs"): (14.438894783638304, 24.105738813241054),
+    ("nerf", "mono"): (17.844650396512854, 22.64418089842002),
+    ("nerf", "hdr-gs"): (12.558149638536207, 23.26930245647375),
+    ("voxel-grid", "mono"): (6.39259982832475, 13.683458474902375),
+    ("voxel-grid", "hdr-gs"): (21.072537882487474, 22.749774258012295),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backbone,method", sorted(PINNED))
+def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
+    assert torch.get_num_threads() == 2  # tests/conftest.py: the pinned runs used 2 threads
+    scene = register_backbone.make_capture(size=16, views=8)
+    backbone_config = CONFIGS[backbone]()
+    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
+                                                     max_steps=200, save_renders=False, checkpoint_every=10**9,
+                                                     seed=3)
+    config.hdr.method = method
+    metrics = Trainer(config, backbone, scene).train()
+    assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=1e-6)

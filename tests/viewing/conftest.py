@@ -1,0 +1,48 @@
+"""Small trained models for the viewer, video and export tests, trained here in seconds."""
+
+import pytest
+
+import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
+from mono_hdr_plugin.frames import LoadedModel, calibrate
+from mono_hdr_plugin.train import Trainer, train_config_for
+
+
+def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono",
+                steps: int = 20) -> tuple[Trainer, LoadedModel]:
+    """A Trainer after `steps` steps (checkpoint written) and the same model as the viewer loads it."""
+    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
+                                                     max_steps=steps, max_eval_views=1, checkpoint_every=10**9,
+                                                     save_renders=False)
+    config.hdr.method = method
+    trainer = Trainer(config, backbone_name, scene)
+    trainer.train()
+    trainer.backbone.eval()
+    trainer.method.eval()
+    model = LoadedModel(backbone=trainer.backbone, method=trainer.method, scene=scene, backbone_name=backbone_name,
+                        exposure=calibrate(trainer.backbone, trainer.method, scene), step=trainer.step)
+    return trainer, model
+
+
+@pytest.fixture(scope="session")
+def voxel_mono(tmp_path_factory, voxel_scene, voxel_backbone_config):
+    """Mono-HDR on the example voxel-grid backbone, 20 steps."""
+    return train_model(tmp_path_factory.mktemp("voxel-mono"), voxel_scene, "voxel-grid", voxel_backbone_config)[1]
+
+
+@pytest.fixture(scope="session")
+def voxel_crf(tmp_path_factory, voxel_scene, voxel_backbone_config):
+    """The HDR-NeRF baseline (a learned camera response) on the voxel-grid backbone, 20 steps."""
+    return train_model(tmp_path_factory.mktemp("voxel-crf"), voxel_scene, "voxel-grid", voxel_backbone_config,
+                       method="hdr-nerf")[1]
+
+
+@pytest.fixture(scope="session")
+def demo_voxel_checkpoint(tmp_path_factory):
+    """A voxel-grid checkpoint of the built-in demo scene (outside slow tests, its tiny variant),
+    as the command line writes it."""
+    from mono_hdr_plugin.cli import main  # noqa: PLC0415
+
+    out = tmp_path_factory.mktemp("demo-voxel") / "run"
+    main(["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet",
+          "--max-eval-views", "1", "--no-save-renders", "--backbone.resolution", "8", "--backbone.samples-per-ray", "8"])
+    return out / "checkpoints" / "latest.pt"
