@@ -155,6 +155,24 @@ class TestRenderLdrFeatures:
         distance = (backbone.means.detach() - camera.center).norm(dim=-1)
         assert ((depth[hit] > 0.5 * distance.min()) & (depth[hit] < distance.max())).all()
 
+    def test_viewer_frames_get_the_depth_pass(self):
+        """render_frame (viewer, videos, point clouds) asks for depth: it must be the render_depth
+        pass, with the composite's alpha beside it."""
+        from mono_hdr_plugin.frames import render_frame
+
+        scene = make_scene()
+        backbone = GaussianBackbone(GaussianConfig(), scene).eval()
+        method = MonoHDR(MethodConfig(), backbone.loss_kind).eval()
+        camera = scene.train_cameras[0]
+        frame = render_frame(backbone, method, camera, 1.0)
+        with torch.no_grad():
+            features = backbone.render_ldr_features(camera)
+            depth = features.extras["render_depth"]()
+            features.composite(features.colors)
+        torch.testing.assert_close(frame.depth, depth[..., 0])
+        torch.testing.assert_close(frame.alpha, features.extras["alpha"][..., 0])
+        assert (frame.depth > 0).any()
+
     def test_converter_on_visible_gaussians_renders_as_on_all(self):
         """The method's L2H-CC on the V visible Gaussians gives the image that running it on all N
         and compositing every Gaussian gives."""
