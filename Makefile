@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 17179869184
 
-.PHONY: install demo test test-slow clean
+.PHONY: install demo test test-slow mutants planted-bugs clean
 
 $(BIN)/mono-hdr: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -33,6 +33,15 @@ test-slow: install
 	# the slow suite also runs the benchmarks on Ray (the optional `distributed` extra)
 	$(BIN)/pip install --quiet -e '.[test,distributed]'
 	$(BIN)/python -m pytest -q -m slow
+
+# Mutation testing of metrics, methods, converters, losses, the pipeline, the trainer's step,
+# evaluation and the rasteriser's Python side (hours on 2 cores; docs/testing.md). Not in CI.
+mutants: install
+	nice -n 19 $(BIN)/python tools/mutants.py
+
+# Known bugs planted one at a time: every one must fail a default-suite test (docs/testing.md).
+planted-bugs: install
+	nice -n 19 $(BIN)/python tools/planted_bugs.py
 
 clean:
 	rm -rf $(VENV) outputs

@@ -9,6 +9,7 @@ is made right here: an HDR voxel scene photographed at one exposure through a ga
 
 import argparse
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
@@ -17,6 +18,7 @@ from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.registry import register_backbone
+from mono_hdr_plugin.validation import POSITIVE, at_least
 
 
 @dataclass
@@ -27,6 +29,8 @@ class VoxelGridConfig:
     """Evenly spaced samples between the camera's near and far."""
     lr: float = 0.1
     """Adam learning rate of the grids."""
+
+    flag_rules: ClassVar = {"resolution": at_least(2), "samples_per_ray": at_least(1), "lr": POSITIVE}
 
 
 def sample_grid(grid: torch.Tensor, points: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:

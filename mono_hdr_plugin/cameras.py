@@ -4,6 +4,7 @@ Loaders convert every other convention (OpenGL/Blender, LLFF, COLMAP world-to-ca
 this one, so backbones never see another.
 """
 
+import math
 from dataclasses import dataclass, replace
 
 import torch
@@ -43,12 +44,14 @@ class Camera:
         if not torch.allclose(rotation @ rotation.T, torch.eye(3, dtype=torch.float64), atol=1e-3):
             raise ValueError("camera rotation is not orthonormal: check the poses file "
                              "(scaled or sheared rotations are not supported)")
-        if not (self.fx > 0 and self.fy > 0):
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if not (0 < self.fx < math.inf and 0 < self.fy < math.inf):
+            raise ValueError(f"focal lengths must be positive and finite, got fx={self.fx}, fy={self.fy}")
+        if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
+            raise ValueError(f"the principal point must be finite, got cx={self.cx}, cy={self.cy}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        if not (0 <= self.near <= self.far):
-            raise ValueError(f"need 0 <= near <= far, got near={self.near}, far={self.far}")
+        if not (0 <= self.near <= self.far < math.inf):
+            raise ValueError(f"need 0 <= near <= far (finite), got near={self.near}, far={self.far}")
 
     @property
     def w2c(self) -> Tensor:

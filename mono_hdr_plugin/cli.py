@@ -1,5 +1,12 @@
-"""The `mono-hdr` command line (tyro). Each command is a config dataclass plus a function."""
+"""The `mono-hdr` command line (tyro). Each command is a config dataclass plus a function.
 
+`run` is the console entry point and the one place where a user's error (bad flag, bad data, a
+file-system fault, an unusable checkpoint or output folder) becomes one line on stderr and exit
+code 2, and Ctrl-C exit code 130 (with the command that resumes an interrupted training).
+"""
+
+import os
+import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -8,8 +15,13 @@ from typing import Any, Callable
 import tyro
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
+
+from mono_hdr_plugin.validation import check_flags
 
 console = Console()
+errors = Console(stderr=True, soft_wrap=True)
+EVAL_OUTPUTS = ("metrics.json", "renders")
 
 
 @dataclass
@@ -26,6 +38,8 @@ class EvalConfig:
     """Evaluate on this built-in scene instead of the run's own data."""
     save_renders: bool = True
     """Write EXR and PNG renders of the test views."""
+    overwrite: bool = False
+    """Replace an earlier evaluation's metrics.json and renders/ in --out instead of refusing."""
 
 
 @dataclass
@@ -42,7 +56,7 @@ class PresetChoice:
 
 def command_train(argv: list[str]) -> None:
     from mono_hdr_plugin.registry import BACKBONES  # noqa: PLC0415
-    from mono_hdr_plugin.train import build_trainer, train_config_for  # noqa: PLC0415
+    from mono_hdr_plugin.train import run_training, train_config_for  # noqa: PLC0415
 
     backbones = BACKBONES.available()
     # A preset changes the defaults of other flags, so tyro parses it first, alone.
@@ -62,13 +76,15 @@ def command_train(argv: list[str]) -> None:
     config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
                                                 description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
-    trainer = build_trainer(config, backbone_name)
     if config.viewer:
         from mono_hdr_plugin.viewer import train_with_viewer  # noqa: PLC0415
 
-        train_with_viewer(trainer, lambda metrics: print_metrics(metrics, config.out / "metrics.json"))
+        def report(metrics: dict) -> None:
+            print_metrics(metrics, config.out / "metrics.json")
+
+        run_training(config, backbone_name, lambda trainer: train_with_viewer(trainer, report))
         return
-    metrics = trainer.train()
+    metrics = run_training(config, backbone_name)
     print_metrics(metrics, config.out / "metrics.json")
 
 
@@ -79,14 +95,29 @@ def _first_line(text: str | None) -> str:
 def command_eval(config: EvalConfig) -> None:
     from mono_hdr_plugin.data.io import write_json  # noqa: PLC0415
     from mono_hdr_plugin.evaluation import evaluate  # noqa: PLC0415
+    from mono_hdr_plugin.outputs import check_output, claim_output  # noqa: PLC0415
     from mono_hdr_plugin.train import load_pipeline  # noqa: PLC0415
 
+    claim = {"command": "eval", "owned": EVAL_OUTPUTS, "overwrite": config.overwrite}
+    check_output(config.out, inputs=[config.checkpoint], **claim)  # before the slow load
     run = load_pipeline(config.checkpoint, data_path=config.data, scene_name=config.scene)
-    metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
-                       render_dir=config.out / "renders" if config.save_renders else None)
-    metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
-    write_json(config.out / "metrics.json", metrics)
+    with claim_output(config.out, inputs=[config.checkpoint, run.config.data.data], **claim) as output:
+        output.clear_previous()
+        metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
+                           render_dir=config.out / "renders" if config.save_renders else None)
+        metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
+        write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
+
+
+def command_render(config: Any) -> None:
+    """`mono-hdr render` in a folder it claims: one writer at a time, never a folder another command or a
+    person wrote; renders add to an earlier render's folder (files of the same name are replaced)."""
+    from mono_hdr_plugin.outputs import claim_output  # noqa: PLC0415
+    from mono_hdr_plugin.render import render_command  # noqa: PLC0415
+
+    with claim_output(config.out, "render", None, inputs=[config.checkpoint], keep=True):
+        render_command(config)
 
 
 def command_bench(argv: list[str]) -> None:
@@ -98,6 +129,7 @@ def command_bench(argv: list[str]) -> None:
                                                   description="Accuracy versus time: curves, the paper's tables, and "
                                                               "what each backbone contributes (3DGS: raster).")
     function = next(function for cls, function in benchmarks.values() if isinstance(config, cls))
+    check_flags(config)
     config.out.mkdir(parents=True, exist_ok=True)
     function(config)
 
@@ -141,15 +173,16 @@ def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Call
         table.add_column(column)
     for name, entry in registry.available().items():
         plugin = entry.plugin
-        table.add_row(name, f"{plugin.__module__}.{plugin.__qualname__}", entry.source, *describe(plugin))
-    for name, reason in registry.broken().items():
-        table.add_row(f"[red]{name}", "[red]broken", reason, *[""] * len(columns))
+        table.add_row(*(Text(str(cell)) for cell in (name, f"{plugin.__module__}.{plugin.__qualname__}", entry.source,
+                                                      *describe(plugin))))
+    for name, reason in registry.broken().items():  # plain Text: an error message is not markup
+        table.add_row(Text(name, style="red"), Text("broken", style="red"), Text(reason), *[""] * len(columns))
     console.print(table)
 
 
 def print_metrics(metrics: dict, path: Path) -> None:
-    table = Table(title=f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} ({metrics['steps']} steps, "
-                        f"{metrics['train_seconds']:.0f} s)")
+    table = Table(title=Text(f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} "
+                             f"({metrics['steps']} steps, {metrics['train_seconds']:.0f} s)"))
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr", "ldr_ssim"):
@@ -158,15 +191,19 @@ def print_metrics(metrics: dict, path: Path) -> None:
     for exposure, value in metrics["ldr_psnr_per_exposure"].items():
         table.add_row(f"ldr_psnr @ {exposure} s", f"{value:.4f}")
     console.print(table)
-    console.print(f"metrics written to {path}")
+    console.print(Text(f"metrics written to {path}"), soft_wrap=True)
 
 
 def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
     """name -> (help line, runner taking the remaining argv)."""
 
     def simple(config_class: type, function: Callable, prog: str) -> Callable[[list[str]], None]:
-        return lambda argv: function(tyro.cli(config_class, args=argv, prog=f"mono-hdr {prog}",
-                                              description=config_class.__doc__))
+        def parse_check_run(argv: list[str]) -> None:
+            config = tyro.cli(config_class, args=argv, prog=f"mono-hdr {prog}", description=config_class.__doc__)
+            check_flags(config)
+            function(config)
+
+        return parse_check_run
 
     commands = {
         "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
@@ -184,10 +221,10 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 def _optional_commands() -> dict[str, tuple[type, Callable]]:
     """Commands contributed by the studio, viewing and process-data modules."""
     from mono_hdr_plugin.export import ExportConfig, export_command  # noqa: PLC0415
-    from mono_hdr_plugin.render import RenderConfig, render_command  # noqa: PLC0415
+    from mono_hdr_plugin.render import RenderConfig  # noqa: PLC0415
     from mono_hdr_plugin.viewer import ViewConfig, view_command  # noqa: PLC0415
 
-    found = {"render": (RenderConfig, render_command), "view": (ViewConfig, view_command),
+    found = {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
              "export": (ExportConfig, export_command)}
     try:
         from mono_hdr_plugin.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
@@ -217,20 +254,43 @@ def main(argv: list[str] | None = None) -> None:
     commands[argv[0]][1](argv[1:])
 
 
-def run() -> None:
-    """Console entry point: user errors print one line (set MONO_HDR_DEBUG=1 for the traceback)."""
-    import os  # noqa: PLC0415
+def resume_command(argv: list[str]) -> str:
+    """The command line that continues an interrupted `mono-hdr train` run."""
+    kept = [arg for arg in argv if arg not in ("--resume", "--no-resume", "--overwrite", "--no-overwrite")]
+    return shlex.join(["mono-hdr", *kept, "--resume"])
 
+
+def error_line(error: BaseException) -> str:
+    """A user error as one line: its message (lines joined), or for a bare file-system error the path,
+    what went wrong and the fix."""
+    from mono_hdr_plugin.data.errors import DatasetError, os_error_line  # noqa: PLC0415
+
+    text = os_error_line(error) if isinstance(error, OSError) and not isinstance(error, DatasetError) else str(error)
+    return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
+
+
+def run() -> None:
+    """Console entry point: user errors print one line and exit 2 (set MONO_HDR_DEBUG=1 for the
+    traceback); Ctrl-C exits 130, after training with the command that resumes it."""
     from mono_hdr_plugin.checkpoints import CheckpointError  # noqa: PLC0415
+    from mono_hdr_plugin.outputs import OutputError  # noqa: PLC0415
     from mono_hdr_plugin.registry import RegistryError  # noqa: PLC0415
-    from mono_hdr_plugin.train import TrainingDiverged  # noqa: PLC0415
+    from mono_hdr_plugin.train import TrainingDiverged, TrainingInterrupted  # noqa: PLC0415
 
     try:
         main()
-    except (ValueError, FileNotFoundError, CheckpointError, RegistryError, TrainingDiverged) as error:
+    except KeyboardInterrupt as interrupt:
         if os.environ.get("MONO_HDR_DEBUG"):
             raise
-        console.print(f"[red]error:[/red] {error}")
+        if isinstance(interrupt, TrainingInterrupted):
+            errors.print(Text(f"{interrupt}. Resume with: {resume_command(sys.argv[1:])}"), highlight=False)
+        else:
+            errors.print(Text("interrupted"), highlight=False)
+        raise SystemExit(130) from None
+    except (ValueError, OSError, CheckpointError, OutputError, RegistryError, TrainingDiverged) as error:
+        if os.environ.get("MONO_HDR_DEBUG"):
+            raise
+        errors.print(Text.assemble(("error:", "bold red"), f" {error_line(error)}"), highlight=False)
         raise SystemExit(2) from None
 
 

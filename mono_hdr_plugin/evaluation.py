@@ -31,14 +31,18 @@ def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int |
     return [v for v in views if v.view_id in view_ids]
 
 
+HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
+
+
 @torch.no_grad()
 def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None,
              render_dir: Path | None = None) -> dict[str, Any]:
     """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
 
-    The headline LDR figures average the exposures the model was trained at (t1/t3/t5); HDR
-    figures are mu-law with both normalisations (docs/method.md). With `render_dir`, each
-    camera's renders are written there (`save_view_renders`).
+    The headline LDR figures average the exposures the model was trained at (t1/t3/t5), each
+    exposure the mean of its views; HDR figures are mu-law with both normalisations
+    (docs/method.md), the mean over cameras. "views" lists every evaluated view's own figures.
+    With `render_dir`, each camera's renders are written there (`save_view_renders`).
     """
     views = evaluation_views(pipeline, scene, max_eval_views)
     try:
@@ -46,42 +50,41 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
     except LpipsUnavailable as reason:
         lpips_model, lpips_skipped = None, str(reason)
     hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
-    per_exposure: dict[float, list[tuple[float, float]]] = {}
-    lpips_rows: dict[str, list[float]] = {"lpips_ldr": [], "lpips_hdr": []}
-    hdr_rows: list[dict[str, float]] = []
+    rows: list[dict[str, Any]] = []
     with pipeline.evaluating():
         for view in views:
             output = pipeline.render(view.camera, view.exposure)
             ldr = output.ldr.clamp(0.0, 1.0)
-            per_exposure.setdefault(view.exposure, []).append(
-                (psnr(ldr, view.image), ssim(ldr.double(), view.image.double()).item()))
+            row = {"view": view.stem, "view_id": view.view_id, "exposure": view.exposure,
+                   "ldr_psnr": psnr(ldr, view.image), "ldr_ssim": ssim(ldr.double(), view.image.double()).item()}
             if lpips_model is not None:
-                lpips_rows["lpips_ldr"].append(lpips_distance(lpips_model, ldr, view.image))
+                row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
             if id(view) in hdr_views:
-                hdr_rows.append(hdr_metrics(output.hdr, view.hdr))
+                row.update(hdr_metrics(output.hdr, view.hdr))
                 if lpips_model is not None:
-                    lpips_rows["lpips_hdr"].append(
-                        lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max")))
+                    row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
                 if render_dir is not None:
                     save_view_renders(render_dir, view, output)
+            rows.append(row)
+    exposures = sorted({row["exposure"] for row in rows})
     train_exposures = set(scene.train_exposures)
-    headline = [e for e in per_exposure if e in train_exposures] or list(per_exposure)
-    ldr_psnr_by_exposure = {f"{e:g}": _mean([p for p, _ in rows]) for e, rows in sorted(per_exposure.items())}
-    ldr_ssim_by_exposure = {f"{e:g}": _mean([s for _, s in rows]) for e, rows in sorted(per_exposure.items())}
+    headline = [e for e in exposures if e in train_exposures] or exposures
+    by_exposure = {key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
+                   for key in ("ldr_psnr", "ldr_ssim")}
     metrics: dict[str, Any] = {
         "backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name,
-        "ldr_psnr": _mean([ldr_psnr_by_exposure[f"{e:g}"] for e in headline]),
-        "ldr_ssim": _mean([ldr_ssim_by_exposure[f"{e:g}"] for e in headline]),
-        "ldr_psnr_per_exposure": ldr_psnr_by_exposure,
-        "ldr_ssim_per_exposure": ldr_ssim_by_exposure,
+        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
+        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
+        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
+        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
         "test_views": len({v.view_id for v in views}),
     }
-    for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"):
-        metrics[key] = _mean([row[key] for row in hdr_rows]) if hdr_rows else None
-    for key, values in lpips_rows.items():
+    for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
+        values = [row[key] for row in rows if key in row]
         metrics[key] = _mean(values) if values else None
     if lpips_skipped:
         metrics["lpips_skipped"] = lpips_skipped
+    metrics["views"] = rows
     return metrics
 
 
@@ -92,7 +95,7 @@ def _mean(values: list[float]) -> float:
 def save_view_renders(render_dir: Path, view: View, output: MethodOutput) -> list[Path]:
     """save_hdr_renders plus <stem>_ldr.png, the LDR render at the view's exposure."""
     path = render_dir / f"{view.stem}_ldr.png"
-    write_png(path, output.ldr.clamp(0, 1).numpy())
+    write_png(path, output.ldr.numpy())  # write_png clips to [0, 1]
     return [*save_hdr_renders(render_dir, view, output.hdr), path]
 
 

@@ -9,7 +9,7 @@ surfaces their renders show (where the training views' rays terminate).
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import torch
@@ -23,6 +23,7 @@ from mono_hdr_plugin.display import to_display, to_uint8
 from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.frames import LoadedModel, load_model, render_frame
 from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
+from mono_hdr_plugin.validation import FRACTION, POSITIVE, at_least
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
@@ -58,6 +59,8 @@ class ExportConfig:
     """Point cloud: keep pixels whose rays are at least this opaque."""
     max_points: int = 1_000_000
     """Point cloud: keep at most this many points (a random subset, seeded)."""
+
+    flag_rules: ClassVar = {"scale": POSITIVE, "min_alpha": FRACTION, "max_points": at_least(1)}
 
 
 def export_command(config: ExportConfig) -> None:

@@ -9,7 +9,7 @@ Methods are plugins: `@register_method("name")` on an HdrMethod subclass, or the
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import torch
 from torch import Tensor, nn
@@ -20,6 +20,7 @@ from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, Pe
 from mono_hdr_plugin.losses import LossKind, photometric_loss
 from mono_hdr_plugin.metrics import normalise_hdr
 from mono_hdr_plugin.registry import PluginRegistry, RegistryError
+from mono_hdr_plugin.validation import FRACTION, NON_NEGATIVE, POSITIVE, at_least, between
 
 # Paper defaults of the loss weights per backbone loss kind (docs/method.md).
 DEFAULT_BETA = {"l1_dssim": 0.05, "mse": 0.01}
@@ -59,6 +60,11 @@ class MethodConfig:
     """HDR-NeRF: CRF output at unit exposure (0.5 synthetic, 0.73 real scenes)."""
     crf_warmup_steps: int = 500
     """HDR-NeRF: the CRF learning rate ramps up linearly over these first steps (HDR-GS has no warm-up)."""
+
+    flag_rules: ClassVar = {"hidden": at_least(1), "alpha": NON_NEGATIVE, "beta": NON_NEGATIVE,
+                            "dssim_weight": FRACTION, "converter_lr": POSITIVE, "unit_exposure_weight": NON_NEGATIVE,
+                            "unit_exposure_value": between(0, 1, low_open=True, high_open=True),
+                            "crf_warmup_steps": NON_NEGATIVE}
 
 
 @dataclass

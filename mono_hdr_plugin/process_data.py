@@ -35,6 +35,7 @@ from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.layouts.common import check_exposure, natural_key
 from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER
 from mono_hdr_plugin.data.loading import downscale_image
+from mono_hdr_plugin.outputs import check_replaceable
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 MIN_IMAGES = 3
@@ -471,6 +472,9 @@ def check_config(config: ProcessDataConfig) -> None:
                            "or choose another --out")
     if config.out.resolve() == config.images.resolve():
         raise DatasetError("--out must differ from --images: the photos would be replaced")
+    # --out is replaced as a whole: only a dataset process-data wrote, never one holding the inputs.
+    check_replaceable(config.out, config.out / REPORT_FILE, [config.images, config.exposure_csv],
+                      "process-data --overwrite replaces")
 
 
 def stage_photos(sources: list[Path], folder: Path, console: Console):

@@ -3,7 +3,7 @@ sequences for compositing, and exposure sweeps (video + strip) at a fixed view."
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import imageio.v2 as imageio
 import numpy as np
@@ -19,6 +19,7 @@ from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.evaluation import first_per_camera, save_hdr_renders
 from mono_hdr_plugin.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.frames import Frame, LoadedModel, load_model, render_frame
+from mono_hdr_plugin.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
 
 console = Console(stderr=True)
 
@@ -68,6 +69,10 @@ class RenderConfig:
     """Sweep: last exposure, in stops relative to the training exposure."""
     strip: Path | None = None
     """Sweep: strip PNG of every frame side by side with its EV; default OUT/exposure_sweep.png."""
+
+    flag_rules: ClassVar = {"exposures": POSITIVE, "max_views": at_least(1), "frames": at_least(1),
+                            "fps": at_least(1), "ev": ANY_FINITE, "scale": POSITIVE, "view": NON_NEGATIVE,
+                            "ev_min": ANY_FINITE, "ev_max": ANY_FINITE}
 
 
 def progress_bar() -> Progress:

@@ -5,35 +5,45 @@
 
 `Trainer.fit(hooks)` is the loop itself: it stops at --max-steps or --max-seconds and refuses a
 run that keeps producing non-finite losses; everything else (progress bar, evaluation,
-checkpoints, the benchmarks' curves) is a `TrainingHook`.
+checkpoints, the benchmarks' curves) is a `TrainingHook`. `run_training` is `mono-hdr train`: it
+claims --out first (one run per folder, no earlier run replaced unasked; docs/robustness.md).
 """
 
+import contextlib
 import dataclasses
 import json
 import math
+import signal
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, NamedTuple
+from typing import Annotated, Any, Callable, ClassVar, NamedTuple
 
 import torch
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mono_hdr_plugin.backbone import Backbone
 from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.checkpoints import config_from_dict, config_to_json, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.checkpoints import (CheckpointError, config_from_dict, config_to_json, load_checkpoint,
+                                         save_checkpoint)
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.evaluation import evaluate
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.methods import METHODS, HdrMethod, MethodConfig, Targets
 from mono_hdr_plugin.metrics import psnr
+from mono_hdr_plugin.outputs import OutputError, claim_output
 from mono_hdr_plugin.pipeline import Pipeline
 from mono_hdr_plugin.registry import get_backbone
+from mono_hdr_plugin.validation import (NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags,
+                                        iter_flags)
 
 console = Console(stderr=True)
 # Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
@@ -41,6 +51,8 @@ console = Console(stderr=True)
 RUN_LENGTH_WARMUP = 5
 RUN_LENGTH_EVERY = 25
 RUN_LENGTH_WINDOW = 50
+TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer")
+"""What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
 
 
 @dataclass
@@ -61,7 +73,9 @@ class TrainConfig:
     out: Path = Path("outputs/run")
     """Output folder: checkpoints/, renders/, metrics.json."""
     resume: bool = False
-    """Continue from OUT/checkpoints/latest.pt."""
+    """Continue the run in --out from OUT/checkpoints/latest.pt (same data, backbone and method)."""
+    overwrite: bool = False
+    """Replace the earlier run in --out (its checkpoints/, renders/ and metrics.json) instead of refusing."""
     seed: int = 0
     """Seed of initialisation and view order."""
     hdr_view_ratio: str = "1:1"
@@ -86,9 +100,36 @@ class TrainConfig:
     viewer_host: str = "127.0.0.1"
     """Address the --viewer listens on; anything but localhost opens it to the network."""
 
+    flag_rules: ClassVar = {"max_steps": NON_NEGATIVE, "max_seconds": POSITIVE, "seed": SEED,
+                            "eval_every": NON_NEGATIVE, "checkpoint_every": at_least(1),
+                            "max_eval_views": at_least(1), "nan_patience": at_least(1),
+                            "viewer_port": between(0, 65535)}
+
 
 class TrainingDiverged(RuntimeError):
-    """Too many consecutive steps produced a non-finite loss or gradient."""
+    """Too many consecutive steps produced a non-finite loss or gradient, or none was finite."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped training after a finished step; `checkpoint` holds that step."""
+
+    def __init__(self, step: int, checkpoint: Path):
+        super().__init__(f"interrupted at step {step}; checkpoint saved to {checkpoint}")
+        self.step, self.checkpoint = step, checkpoint
+
+
+class ResumeMismatch(ValueError):
+    """--resume with settings that would continue a different model or data than the checkpoint's."""
+
+
+# Flags of a run that may change when it is resumed (the schedule, the output, logging).
+RESUME_FREE_FLAGS = {"--max-steps", "--max-seconds", "--out", "--resume", "--overwrite", "--eval-every",
+                     "--checkpoint-every", "--max-eval-views", "--save-renders", "--nan-patience", "--quiet",
+                     "--seed", "--preset", "--viewer", "--viewer-port", "--viewer-host"}
+# Flags that make a resumed run a different experiment; the data flags count through the data itself.
+RESUME_IDENTITY_FLAGS = {"--method", "--hidden"}
+DATA_FLAGS = {"--data", "--scene", "--layout", "--protocol", "--exposure-index", "--fixed-exposure", "--downscale",
+              "--exposure-seed"}
 
 
 def parse_view_ratio(ratio: str) -> tuple[int, int]:
@@ -102,16 +143,11 @@ def parse_view_ratio(ratio: str) -> tuple[int, int]:
 
 
 def check_train_config(config: TrainConfig) -> None:
-    """Refuse out-of-range run flags before any work is done, naming the flag."""
-    minimums = {"max_steps": 0, "checkpoint_every": 1, "eval_every": 0, "nan_patience": 1}
-    for name, minimum in minimums.items():
-        value = getattr(config, name)
-        if value < minimum:
-            raise ValueError(f"--{name.replace('_', '-')} must be an integer >= {minimum}, got {value}")
-    if config.max_seconds is not None and not (math.isfinite(config.max_seconds) and config.max_seconds > 0):
-        raise ValueError(f"--max-seconds must be a positive number of seconds, got {config.max_seconds}")
-    if config.max_eval_views is not None and config.max_eval_views < 1:
-        raise ValueError(f"--max-eval-views must be >= 1 (or omitted for all views), got {config.max_eval_views}")
+    """Refuse flags that cannot work before any work is done, naming the flag: every numeric flag
+    (run, data, method and backbone alike) against its rule (validation.py), then the rest."""
+    check_flags(config)
+    if config.resume and config.overwrite:
+        raise FlagError("--resume continues the run in --out and --overwrite replaces it: pass one of them")
     parse_view_ratio(config.hdr_view_ratio)
     METHODS.get(config.hdr.method)  # a misspelt method or layout is named before any data is read
     if config.data.layout != "auto":
@@ -167,6 +203,8 @@ class Trainer:
         self.train_seconds = 0.0
         self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
+        self.saved_step: int | None = None
+        """Step of the checkpoint at checkpoint_path() this run wrote or resumed from (None: none yet)."""
 
     @property
     def backbone(self) -> Backbone:
@@ -263,12 +301,13 @@ class Trainer:
         A step with a non-finite loss or gradient is skipped; --nan-patience of them in a row
         raise TrainingDiverged.
         """
-        failures = 0
+        failures = taken = good = 0
         for hook in hooks:
             hook.on_start(self)
         try:
             while not self.finished:
                 record = self.train_step()
+                taken += 1
                 if record["skipped"]:
                     failures += 1
                     console.print(f"[yellow]step {self.step}: non-finite {', '.join(record['bad_tensors'])}; "
@@ -276,29 +315,50 @@ class Trainer:
                     if failures >= self.config.nan_patience:
                         raise TrainingDiverged(
                             f"{failures} consecutive steps had a non-finite loss or gradient (last: "
-                            f"{', '.join(record['bad_tensors'])}); stopped at step {self.step}. The last good "
-                            f"checkpoint is {self.checkpoint_path()}: lower the learning "
-                            "rates or check the data for NaN/Inf")
+                            f"{', '.join(record['bad_tensors'])}); stopped at step {self.step}. "
+                            f"{self.last_checkpoint_note()}: lower the learning rates or check the data for NaN/Inf")
                     continue
                 failures = 0
+                good += 1
                 for hook in hooks:
                     hook.after_step(self, record)
+            if taken and not good:  # the model is the untrained one: nothing to save or score
+                raise TrainingDiverged(
+                    f"none of the {taken} steps had a finite loss and gradients (last: "
+                    f"{', '.join(record['bad_tensors'])}), so nothing was trained, saved or scored: lower the "
+                    "learning rates or check the data for NaN/Inf")
         finally:
             for hook in hooks:
                 hook.on_end(self)
 
     def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
         """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
-        viewer's); then save, evaluate and write OUT/metrics.json (and renders)."""
+        viewer's); then save, evaluate and write OUT/metrics.json (and renders). Ctrl-C stops after
+        the step in progress, saves a checkpoint and raises TrainingInterrupted."""
         config = self.config
         hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
         if config.eval_every:
             hooks.append(EvaluateEvery(config.eval_every))
         hooks.append(CheckpointEvery(config.checkpoint_every))
-        self.fit([*hooks, *extra_hooks])
-        self.save()
-        metrics = self.evaluate(save_renders=config.save_renders)
-        write_json(config.out / "metrics.json", metrics)
+        with interrupt_requests() as interrupt:
+            # last: the step's evaluation and checkpoint come first
+            hooks = [*hooks, *extra_hooks, StopWhenInterrupted(interrupt)]
+            try:
+                self.fit(hooks)
+            except TrainingInterrupted:
+                if self.saved_step != self.step:
+                    self.save()
+                raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
+            self.save()
+        try:
+            metrics = self.evaluate(save_renders=config.save_renders)
+            write_json(config.out / "metrics.json", metrics)
+        except KeyboardInterrupt:  # the trained model is saved: resuming only evaluates
+            raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
+        except OSError as error:
+            raise OutputError(f"{os_error_line(error)}. Training finished and its checkpoint {self.checkpoint_path()} "
+                              "is saved: once fixed, score it with `mono-hdr eval --checkpoint "
+                              f"{self.checkpoint_path()}`") from error
         return metrics
 
     # --------------------------------------------------------------- evaluation
@@ -312,10 +372,34 @@ class Trainer:
     def checkpoint_path(self) -> Path:
         return self.config.out / "checkpoints" / "latest.pt"
 
+    def last_checkpoint_note(self) -> str:
+        """Where the last good state is, for error messages: never a checkpoint that was not written."""
+        if self.saved_step is None:
+            return (f"No checkpoint has been written yet (--checkpoint-every {self.config.checkpoint_every}), so "
+                    "nothing of this run is kept")
+        return f"The last good checkpoint is {self.checkpoint_path()} (step {self.saved_step}); --resume continues it"
+
     def save(self) -> None:
+        """Write OUT/checkpoints/latest.pt. Non-finite parameters never replace a good checkpoint, and
+        a file-system error (a full disk) keeps the previous one and says so."""
+        bad = [name for name, parameter in self.pipeline.named_parameters() if not torch.isfinite(parameter).all()]
+        if bad:
+            raise TrainingDiverged(f"parameters {', '.join(bad[:3])} became NaN or Inf by step {self.step} and are "
+                                   f"not saved. {self.last_checkpoint_note()}: lower the learning rates or check the "
+                                   "data for NaN/Inf")
+        try:
+            self._write_checkpoint()
+        except OSError as error:
+            raise CheckpointError(f"cannot save the checkpoint of step {self.step}: {os_error_line(error)}. "
+                                  f"{self.last_checkpoint_note()}") from error
+        self.saved_step = self.step
+
+    def _write_checkpoint(self) -> None:
         save_checkpoint(self.checkpoint_path(), {
             "backbone_name": self.backbone_name,
             "config": config_to_json(self.config),
+            "data": {"scene": self.scene.name, "source": str(self.scene.metadata.get("source", "in memory")),
+                     "train_views": len(self.scene.train), "fingerprint": self.scene.fingerprint()},
             "pipeline": self.pipeline.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "step": self.step,
@@ -327,14 +411,23 @@ class Trainer:
         })
 
     def restore(self, payload: dict[str, Any]) -> None:
-        """Load model, converters, optimiser and RNG state from a checkpoint payload."""
-        if payload["backbone_name"] != self.backbone_name:
-            raise ValueError(f"the checkpoint holds a {payload['backbone_name']!r} model, not {self.backbone_name!r}")
-        self.pipeline.load_state_dict(payload["pipeline"])
-        for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
-            group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
-        self.optimizer.load_state_dict(payload["optimizer"])
+        """Load model, converters, optimiser and RNG state from a checkpoint payload, after checking
+        that it is this run's: same backbone, method and data (ResumeMismatch names what differs)."""
+        changed = self._check_resumable(payload)
+        try:
+            self.pipeline.load_state_dict(payload["pipeline"])
+            for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+                group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
+            self.optimizer.load_state_dict(payload["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as error:
+            settings = f" (changed: {', '.join(changed)})" if changed else ""
+            raise ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: its model does not fit the one these "
+                                 f"flags build{settings}: {str(error).strip().splitlines()[0][:200]}. Pass the "
+                                 "flags it was trained with, or train into another --out") from error
+        if changed:
+            console.print(f"note: resuming with changed settings: {', '.join(changed)}", markup=False)
         self.step = payload["step"]
+        self.saved_step = payload["step"]
         self.train_seconds = payload["train_seconds"]
         if self.config.max_seconds is not None:  # keep the schedule the time budget had scaled to
             self.run_length = min(payload["run_length"], self.config.max_steps)
@@ -342,6 +435,53 @@ class Trainer:
         self.generator.set_state(payload["generator"])
         torch.set_rng_state(payload["torch_rng"])
         self.view_order = payload["view_order"].tolist()
+
+    def _check_resumable(self, payload: dict[str, Any]) -> list[str]:
+        """Raise ResumeMismatch naming every difference that makes resuming meaningless (backbone,
+        method, converter width, data); return the other changed settings, as `--flag new (was old)`."""
+        if payload.get("backbone_name") != self.backbone_name:
+            raise self._cannot_resume([f"the checkpoint holds a {payload.get('backbone_name')!r} model, not "
+                                       f"{self.backbone_name!r}"])
+        try:
+            saved = config_from_dict(type(self.config), json.loads(payload["config"]))
+        except (KeyError, TypeError, ValueError) as error:
+            raise CheckpointError(f"{self.checkpoint_path()}: its run settings cannot be read ({error}); it was not "
+                                  "written by this version: train into another --out") from error
+        changes = changed_flags(saved, self.config)
+        reasons = [f"it was trained with {flag} {old}, not {new}" for flag, (old, new) in changes.items()
+                   if flag in RESUME_IDENTITY_FLAGS]
+        data = payload.get("data")
+        data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
+        if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
+            trained_on = (f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)" if data
+                          else "other data")
+            reasons.append(f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
+                           f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
+                           + (f"; changed: {', '.join(data_changes)}" if data_changes else ""))
+        if reasons:
+            raise self._cannot_resume(reasons)
+        return [describe_change(flag, change) for flag, change in changes.items()
+                if flag not in RESUME_IDENTITY_FLAGS | DATA_FLAGS]
+
+    def _cannot_resume(self, reasons: list[str]) -> ResumeMismatch:
+        return ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: {'; '.join(reasons)}. Pass the flags it "
+                              "was trained with to continue it, or train into another --out (or --overwrite this one)")
+
+
+def changed_flags(before: TrainConfig, after: TrainConfig) -> dict[str, tuple[Any, Any]]:
+    """{flag: (old, new)} of the flags that differ between two run configs (paths compared resolved,
+    so `./scene` and `/abs/scene` are one), leaving out RESUME_FREE_FLAGS."""
+    def comparable(value: Any) -> Any:
+        return str(Path(value).resolve()) if isinstance(value, Path) else value
+
+    old = {flag: value for flag, value, _ in iter_flags(before)}
+    new = {flag: value for flag, value, _ in iter_flags(after)}
+    return {flag: (old.get(flag), new.get(flag)) for flag in sorted(old.keys() | new.keys())
+            if flag not in RESUME_FREE_FLAGS and comparable(old.get(flag)) != comparable(new.get(flag))}
+
+
+def describe_change(flag: str, change: tuple[Any, Any]) -> str:
+    return f"{flag} {change[1]} (was {change[0]})"
 
 
 class ProgressBar(TrainingHook):
@@ -351,7 +491,7 @@ class ProgressBar(TrainingHook):
         self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                                  TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
                                  TimeElapsedColumn(), console=console)
-        self.task = self.progress.add_task(f"{trainer.backbone_name}/{trainer.pipeline.method_name}",
+        self.task = self.progress.add_task(escape(f"{trainer.backbone_name}/{trainer.pipeline.method_name}"),
                                            total=trainer.run_length, completed=trainer.step, loss=math.nan,
                                            psnr=math.nan)
         self.progress.start()
@@ -389,6 +529,60 @@ class CheckpointEvery(TrainingHook):
             trainer.save()
 
 
+class StopWhenInterrupted(TrainingHook):
+    """Ends training cleanly after the step Ctrl-C arrived in (Trainer.train then saves)."""
+
+    def __init__(self, interrupt: "InterruptRequest"):
+        self.interrupt = interrupt
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if self.interrupt.requested:
+            raise TrainingInterrupted(trainer.step, trainer.checkpoint_path())
+
+
+class InterruptRequest:
+    """Whether Ctrl-C was pressed: the first press asks training to stop after the current step (so
+    the saved state is a whole step, never half an optimiser or densification update); a second
+    press stops at once."""
+
+    def __init__(self):
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        console.print("[yellow]Ctrl-C: stopping after this step and saving a checkpoint (press again to stop at once)")
+
+
+@contextlib.contextmanager
+def interrupt_requests():
+    """Catch Ctrl-C as an InterruptRequest inside the block (main thread only: elsewhere signals
+    cannot be caught, and Ctrl-C stays a plain KeyboardInterrupt)."""
+    request = InterruptRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+    previous = signal.signal(signal.SIGINT, request)
+    try:
+        yield request
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def run_training(config: TrainConfig, backbone_name: str,
+                 train: Callable[[Trainer], dict[str, Any]] = Trainer.train) -> dict[str, Any]:
+    """`mono-hdr train`: claim --out (refused while another run writes it, or when it holds an earlier
+    run and neither --resume nor --overwrite says what to do), load the data, then `train` (the
+    viewer's training, or plain) and score."""
+    check_train_config(config)
+    with claim_output(config.out, "train", TRAIN_OUTPUTS, inputs=[config.data.data], overwrite=config.overwrite,
+                      keep=config.resume, keep_hint="pass --resume to continue it, ") as claim:
+        trainer = build_trainer(config, backbone_name)
+        claim.clear_previous()
+        return train(trainer)
+
+
 def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:
     """Load the scene (unless given) and set up a Trainer, resuming when asked."""
     check_train_config(config)
@@ -399,7 +593,7 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     trainer = Trainer(config, backbone_name, scene)
     if config.resume:
         trainer.restore(load_checkpoint(trainer.checkpoint_path()))
-        console.print(f"resumed from {trainer.checkpoint_path()} at step {trainer.step}")
+        console.print(f"resumed from {trainer.checkpoint_path()} at step {trainer.step}", markup=False)
     return trainer
 
 
@@ -418,7 +612,11 @@ def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: P
     (an in-memory `scene`, a dataset folder or a built-in scene name)."""
     payload = load_checkpoint(checkpoint)
     backbone_class = get_backbone(payload["backbone_name"])
-    config = config_from_dict(train_config_for(backbone_class.config_class), json.loads(payload["config"]))
+    try:
+        config = config_from_dict(train_config_for(backbone_class.config_class), json.loads(payload["config"]))
+    except (KeyError, TypeError, ValueError) as error:
+        raise CheckpointError(f"{checkpoint}: its run settings cannot be read by this version ({error}); "
+                              "retrain, or install the version that wrote it") from error
     if data_path is not None or scene_name is not None:
         config.data = dataclasses.replace(config.data, data=data_path, scene=scene_name)
     if scene is None:
@@ -427,7 +625,12 @@ def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: P
         scene = load_scene(config.data)
     pipeline = Pipeline.create(payload["backbone_name"], config.backbone, config.hdr, scene.scene_info())
     pipeline.set_run_length(payload["run_length"])
-    pipeline.load_state_dict(payload["pipeline"])
+    try:
+        pipeline.load_state_dict(payload["pipeline"])
+    except (RuntimeError, KeyError) as error:
+        raise CheckpointError(f"{checkpoint}: its model does not fit the {payload['backbone_name']!r} model of this "
+                              f"version ({str(error).strip().splitlines()[0][:200]}); retrain, or install the version "
+                              "that wrote it") from error
     pipeline.eval()
     return TrainedRun(pipeline, scene, config, payload)
 

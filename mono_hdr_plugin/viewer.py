@@ -22,7 +22,7 @@ import time
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Callable
+from typing import Callable, ClassVar
 
 import numpy as np
 import torch
@@ -39,6 +39,7 @@ from mono_hdr_plugin.frames import ExposureModel, Frame, RenderCancelled, calibr
 from mono_hdr_plugin.methods import HdrMethod
 from mono_hdr_plugin.metrics import hdr_metrics, normalise_hdr, psnr
 from mono_hdr_plugin.train import TrainingHook
+from mono_hdr_plugin.validation import at_least, between
 
 console = Console(stderr=True)
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -69,6 +70,8 @@ class ViewConfig:
     """Folder for views saved with the viewer's Save button."""
     max_resolution: int = 512
     """Longest side of a still frame in pixels (a slider in the viewer)."""
+
+    flag_rules: ClassVar = {"port": between(0, 65535), "max_resolution": at_least(1)}
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import torch
 import tyro
@@ -14,6 +15,7 @@ from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 
 @dataclass
@@ -50,6 +52,13 @@ class GaussianConfig:
     official clone/split/prune); its settings are the --backbone.strategy.* flags."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
+
+    flag_rules: ClassVar = {
+        "sh_degree": between(0, 3), "sh_increase_every": at_least(1), "random_init_points": at_least(1),
+        "init_opacity": between(0, 1, low_open=True, high_open=True), "init_scale": POSITIVE, "lr_means": POSITIVE,
+        "lr_means_final": POSITIVE, "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE,
+        "lr_scales": POSITIVE, "lr_quats": POSITIVE}
+    """The strategy's flags follow its own table (McmcStrategy, DefaultStrategy)."""
 
 
 def cpu_preset() -> GaussianConfig:

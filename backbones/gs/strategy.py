@@ -20,12 +20,13 @@ without touching the state.
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable
+from typing import Callable, ClassVar
 
 import torch
 from torch import Tensor
 
 from backbones.gs.reference import quaternion_to_rotation
+from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 GAUSSIAN_PARAMETERS = ("means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits")
 """The per-Gaussian parameters of the backbone, first dimension N, in optimiser-group order."""
@@ -78,6 +79,12 @@ class McmcStrategy:
     """Weight of the mean opacity in the loss."""
     scale_reg: float = 0.01
     """Weight of the mean scale (scene units) in the loss."""
+
+    flag_rules: ClassVar = {
+        "max_gaussians": at_least(1), "gaussians_per_pixel": POSITIVE, "grow_fraction": NON_NEGATIVE,
+        "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
+        "min_refine_every": at_least(1), "min_opacity": between(0, 1, high_open=True), "noise_lr": NON_NEGATIVE,
+        "opacity_reg": NON_NEGATIVE, "scale_reg": NON_NEGATIVE}
 
     def budget(self, training_pixels: int) -> int:
         """The most Gaussians this strategy ever holds, for `training_pixels` pixels of training views."""
@@ -250,6 +257,12 @@ class DefaultStrategy:
     """Prune Gaussians less opaque than this."""
     max_screen_size: float = 20.0
     """After the first opacity reset, prune Gaussians wider than this many pixels."""
+
+    flag_rules: ClassVar = {
+        "max_gaussians": at_least(1), "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE,
+        "refine_every": at_least(1), "min_refine_every": at_least(1), "reset_opacity_every": at_least(1),
+        "grad_threshold": NON_NEGATIVE, "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True),
+        "max_screen_size": POSITIVE}
 
     def budget(self, training_pixels: int) -> int:
         if self.max_gaussians < 1:

@@ -8,7 +8,9 @@ values of `field`.
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
+
+from mono_hdr_plugin.validation import ANY_FINITE, FRACTION, NON_NEGATIVE, POSITIVE, at_least, between
 
 DensityActivation = Literal["relu", "softplus"]
 
@@ -44,6 +46,11 @@ class MlpFieldConfig:
     """The learning rate is multiplied by this factor every lr_decay_steps (smoothly)."""
     lr_decay_steps: int = 250_000
     """NeRF's exponential decay: lr * lr_decay_factor ** (step / lr_decay_steps)."""
+
+    flag_rules: ClassVar = {"depth": at_least(1), "width": at_least(1), "skip_layer": NON_NEGATIVE,
+                            "xyz_frequencies": NON_NEGATIVE, "dir_frequencies": NON_NEGATIVE,
+                            "coarse_samples": at_least(1), "fine_samples": NON_NEGATIVE, "rays_per_step": at_least(1),
+                            "lr": POSITIVE, "lr_decay_factor": POSITIVE, "lr_decay_steps": at_least(1)}
 
 
 @dataclass
@@ -100,6 +107,16 @@ class GridFieldConfig:
     lr_final_factor: float = 0.1
     """Learning rates decay exponentially to this factor at the last step of the run."""
 
+    flag_rules: ClassVar = {
+        "levels": at_least(1), "min_resolution": at_least(2), "max_resolution": at_least(2),
+        "features_per_level": at_least(1), "hidden_width": at_least(1), "geo_features": NON_NEGATIVE,
+        "dir_frequencies": NON_NEGATIVE, "density_scale": POSITIVE, "density_bias": ANY_FINITE,
+        "uniform_samples": at_least(1), "importance_samples": NON_NEGATIVE, "proposal_samples": at_least(1),
+        "density_grid_resolution": at_least(1), "density_grid_update_every": at_least(1),
+        "density_grid_decay": between(0, 1, low_open=True), "occupancy_threshold": NON_NEGATIVE,
+        "min_sample_weight": NON_NEGATIVE, "rays_per_step": at_least(1), "grid_lr": POSITIVE, "mlp_lr": POSITIVE,
+        "lr_final_factor": POSITIVE}
+
 
 @dataclass
 class NerfConfig:
@@ -117,3 +134,5 @@ class NerfConfig:
     composited channels (LDR and HDR alike); black, as in the paper's synthetic scenes."""
     render_chunk: int = 8192
     """Rays rendered at once when a whole image is rendered in pieces (memory bound)."""
+
+    flag_rules: ClassVar = {"background": FRACTION, "render_chunk": at_least(1)}

@@ -6,6 +6,7 @@ single-exposure run never decodes the other exposures. Layout writers consume th
 """
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Literal
 
 import numpy as np
@@ -20,6 +21,17 @@ ImageSource = Callable[[], np.ndarray]
 def constant(image: np.ndarray) -> ImageSource:
     """An ImageSource for an image already in memory."""
     return lambda: image
+
+
+@dataclass(frozen=True)
+class ImageFile:
+    """An ImageSource that reads `path` with `reader`; the path names the file in messages."""
+
+    path: Path
+    reader: Callable[[Path], np.ndarray]
+
+    def __call__(self) -> np.ndarray:
+        return self.reader(self.path)
 
 
 @dataclass

@@ -2,7 +2,9 @@
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
+
+from mono_hdr_plugin.validation import POSITIVE, SEED, between
 
 
 @dataclass
@@ -28,3 +30,6 @@ class DataConfig:
     """Integer factor to shrink images by (area averaging), 2 reproduces the paper's half_res."""
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
+
+    flag_rules: ClassVar = {"exposure_index": between(0, 2), "fixed_exposure": POSITIVE, "downscale": POSITIVE,
+                            "exposure_seed": SEED}

@@ -1,5 +1,8 @@
 """In-memory datasets: views (one LDR image at one exposure, optional HDR) grouped in splits."""
 
+import dataclasses
+import hashlib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -8,6 +11,42 @@ from torch import Tensor
 
 from mono_hdr_plugin.backbone import SceneInfo
 from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.data.errors import DatasetError
+
+
+def check_hdr_ground_truth(hdr, label: str) -> str | None:
+    """HDR ground truth [H, W, 3] (tensor or array): raise DatasetError for negative values, which no
+    radiance has; return why it carries no HDR information (all zero, one value everywhere), or None."""
+    flat = torch.as_tensor(hdr).reshape(-1, 3)
+    negative = flat < 0
+    if negative.any():
+        raise DatasetError(f"{label}: HDR ground truth has {int(negative.any(-1).sum())} pixel(s) with negative "
+                           f"values (down to {float(flat.min()):.4g}); radiance is never negative: export it as "
+                           "linear, unclamped values (clamp small filter ringing to 0)")
+    if not bool((flat != 0).any()):
+        return "is all zero"
+    if bool((flat == flat[0]).all()):
+        return f"has one value {tuple(round(v, 6) for v in flat[0].tolist())} at every pixel"
+    return None
+
+
+def without_uninformative_hdr(views: list["View"]) -> tuple[list["View"], list[str]]:
+    """The views with HDR ground truth that carries no HDR information removed (never trained on or
+    scored), and a note per view that lost it."""
+    kept, notes = [], []
+    for view in views:
+        reason = check_hdr_ground_truth(view.hdr, view.name or str(view.view_id)) if view.hdr is not None else None
+        if reason:
+            notes.append(f"{view.name or view.view_id} {reason}")
+            view = dataclasses.replace(view, hdr=None)
+        kept.append(view)
+    return kept, notes
+
+
+def warn_uninformative_hdr(scene: str, notes: list[str]) -> None:
+    listing = "; ".join(notes[:5]) + (f"; and {len(notes) - 5} more" if len(notes) > 5 else "")
+    warnings.warn(f"scene {scene!r}: the HDR ground truth of {len(notes)} view(s) carries no HDR information and is "
+                  f"not used for training or HDR metrics ({listing}); re-export it if it should", stacklevel=3)
 
 
 @dataclass
@@ -46,6 +85,8 @@ class View:
         for what, pixels in (("image", self.image), ("HDR ground truth", self.hdr)):
             if pixels is not None and not torch.isfinite(pixels).all():
                 raise ValueError(f"{label}: {what} contains NaN or Inf; repair or drop the file")
+        if self.hdr is not None:
+            check_hdr_ground_truth(self.hdr, label)
 
 
 @dataclass
@@ -64,6 +105,25 @@ class SceneData:
     def __post_init__(self):
         if not self.train:
             raise ValueError(f"scene {self.name!r} has no training views")
+        # All-zero or constant HDR ground truth would be "learned" and scored: keep it out of both.
+        self.train, train_notes = without_uninformative_hdr(self.train)
+        self.test, test_notes = without_uninformative_hdr(self.test)
+        if train_notes or test_notes:
+            warn_uninformative_hdr(self.name, train_notes + test_notes)
+
+    def fingerprint(self) -> str:
+        """A digest of everything training reads from the data, view by view: name, exposure, camera,
+        photo and HDR ground truth. `--resume` compares it to refuse continuing on other data."""
+        digest = hashlib.sha256()
+        for split, views in (("train", self.train), ("test", self.test)):
+            for view in views:
+                camera = view.camera
+                digest.update(f"{split}|{view.name}|{view.exposure!r}|{camera.width}x{camera.height}|{camera.fx!r}|"
+                              f"{camera.fy!r}|{camera.cx!r}|{camera.cy!r}|{camera.near!r}|{camera.far!r}|".encode())
+                for tensor in (camera.c2w, view.image, view.hdr):
+                    if tensor is not None:
+                        digest.update(tensor.detach().float().contiguous().numpy().tobytes())
+        return digest.hexdigest()
 
     @property
     def train_exposures(self) -> list[float]:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mono_hdr_plugin.data.errors import DatasetError, missing
+from mono_hdr_plugin.data.errors import DatasetError, as_os_error, missing
 
 FLOAT16_MAX = 65504.0
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -26,16 +26,37 @@ PNG_BIT_DEPTH_OFFSET = 24
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path beside `path` (same suffix); rename it onto `path` on success."""
+def atomic_path(path: str | os.PathLike, durable: bool = False):
+    """Yield a temporary path beside `path` (same suffix); rename it onto `path` on success.
+
+    On failure `path` keeps its previous content and the temporary file is removed; a file-system
+    error names `path`, also when a library reported it as text (OpenEXR's "No space left on device"). `durable`: flush the file and the folder to disk, so the rename survives a power cut.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
     try:
         yield temporary
+        if durable:
+            _fsync(temporary)
         os.replace(temporary, path)
+        if durable:
+            _fsync(path.parent)
+    except Exception as error:
+        os_error = as_os_error(error, path)
+        if os_error is None:
+            raise
+        raise OSError(os_error.errno, os_error.strerror, str(path)) from error  # named: the file being written
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def _fsync(path: Path) -> None:
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
 
 
 def write_json(path: str | os.PathLike, data) -> None:
@@ -46,10 +67,24 @@ def write_json(path: str | os.PathLike, data) -> None:
 
 
 def _existing(path: str | os.PathLike) -> Path:
+    """`path`, checked to be a readable file, so a decoder's failure means a damaged file."""
     path = Path(path)
+    if path.is_dir():
+        raise DatasetError(f"{path}: is a folder, not an image file; check the dataset's file names")
     if not path.is_file():
         raise missing(path, "check the path, or re-export the dataset")
+    check_readable(path)
     return path
+
+
+def check_readable(path: Path) -> None:
+    """A file that exists but cannot be opened is a permission problem, not a damaged file: say so."""
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as error:
+        raise DatasetError(f"{path}: cannot be opened ({error.strerror}); fix its permissions "
+                           "(e.g. `chmod u+r`)") from error
 
 
 def _to_rgb(pixels: np.ndarray, path: Path) -> np.ndarray:

@@ -9,11 +9,12 @@ import torch
 
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.dataset import SceneData, View, check_hdr_ground_truth, warn_uninformative_hdr
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
 from mono_hdr_plugin.data.sources import named_scene, scene_names
+from mono_hdr_plugin.validation import check_flags
 
 
 def captured_scene(config: DataConfig) -> CapturedScene:
@@ -38,13 +39,21 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
     return blocks.mean(axis=(1, 3), dtype=np.float32)
 
 
-def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float]) -> list[View]:
+def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float], notes: list[str]) -> list[View]:
+    """The views of the chosen shots; HDR ground truth that carries no HDR information is left out
+    (with a note naming its file), negative HDR ground truth refused."""
     camera = view.camera
     if factor > 1:  # downscale_image crops the remainder: the camera keeps the whole blocks only
         camera = replace(camera.scaled(1.0 / factor), width=camera.width // factor, height=camera.height // factor)
     hdr = None
     if view.hdr is not None:
-        hdr = torch.from_numpy(downscale_image(view.hdr(), factor, view.name))
+        label = str(getattr(view.hdr, "path", view.name))
+        pixels = view.hdr()
+        reason = check_hdr_ground_truth(pixels, label)
+        if reason:
+            notes.append(f"{label} {reason}")
+        else:
+            hdr = torch.from_numpy(downscale_image(pixels, factor, label))
     token = PurePosixPath(view.name).name or f"{view.view_id:03d}"
     return [View(camera=camera, image=torch.from_numpy(downscale_image(shot.image(), factor, shot.name)),
                  exposure=float(shot.exposure), view_id=view.view_id, name=shot.name, hdr=hdr,
@@ -80,13 +89,15 @@ def warn_partial_hdr(scene: CapturedScene) -> None:
 
 def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
     """Apply the exposure protocol and --downscale; decode only the chosen photos."""
-    if config.downscale < 1:
-        raise DatasetError(f"--downscale must be a positive integer, got {config.downscale}")
+    check_flags(config)
     warn_partial_hdr(scene)
     chosen = select_shots(scene, config)
     splits: dict[str, list[View]] = {"train": [], "test": []}
+    notes: list[str] = []
     for view in scene.views:
-        splits[view.split].extend(_views(view, chosen[id(view)], config.downscale, scene.exposure_levels))
+        splits[view.split].extend(_views(view, chosen[id(view)], config.downscale, scene.exposure_levels, notes))
+    if notes:
+        warn_uninformative_hdr(scene.name, notes)
     check_same_size(scene, splits["train"] + splits["test"])
     metadata = {**scene.metadata, "protocol": config.protocol,
                 "exposure_levels": scene.exposure_levels}

@@ -2,10 +2,12 @@
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from mono_hdr_plugin.studio.render import dynamic_range, render_scene
 from mono_hdr_plugin.studio.scene import StudioScene
 from mono_hdr_plugin.studio.scenes import SCENES
+from mono_hdr_plugin.validation import SEED
 
 @dataclass
 class SynthConfig:
@@ -20,6 +22,10 @@ class SynthConfig:
     hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
     seed: int = 0
     """Seed of the simulated sensor noise."""
+    overwrite: bool = False
+    """Replace a dataset an earlier `mono-hdr synth` wrote in --out instead of refusing."""
+
+    flag_rules: ClassVar = {"seed": SEED}
 
 
 @dataclass
@@ -38,11 +44,15 @@ def png_bits(scene: StudioScene) -> int:
 def synth(config: SynthConfig) -> Path:
     """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
     from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.outputs import claim_output
     from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
 
-    scene = get_scene(config.scene)
-    write_layout(studio_captured_scene(scene, seed=config.seed), config.out, config.layout,
-                 bits=png_bits(scene))
+    # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
+    with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
+        scene = get_scene(config.scene)
+        captured = studio_captured_scene(scene, seed=config.seed)
+        output.clear_previous()
+        write_layout(captured, config.out, config.layout, bits=png_bits(scene))
     return config.out
 
 

@@ -82,8 +82,9 @@ class TestConsoleEntry:
         with pytest.raises(SystemExit) as exit_info:
             cli.run()
         assert exit_info.value.code == 2
-        out = capsys.readouterr().out
-        assert "error:" in out and "latest.pt does not exist" in out and "Traceback" not in out
+        err = capsys.readouterr().err
+        assert "error:" in err and "latest.pt does not exist" in err and "Traceback" not in err
+        assert len(err.strip().splitlines()) == 1
 
 
 class TestPresets:
@@ -98,7 +99,7 @@ class TestPresets:
             seen["config"], seen["backbone"] = config, backbone_name
             raise SystemExit(0)
 
-        monkeypatch.setattr(train_module, "build_trainer", capture)
+        monkeypatch.setattr(train_module, "run_training", capture)
         return seen
 
     def test_preset_gives_the_defaults_and_flags_override_it(self, captured):

@@ -1,6 +1,7 @@
 """Crash safety: a training run killed with SIGKILL at a random moment leaves its last checkpoint
 loadable under the real name, and `--resume` continues from it. Checkpoints are written to a
-temporary file and renamed (docs/robustness.md), so a half-written file never has the name."""
+temporary file and renamed (docs/robustness.md), so a half-written file never has the name; the
+next run removes the temporary files and takes over the dead run's claim on --out."""
 
 import os
 import random
@@ -13,29 +14,16 @@ from pathlib import Path
 import pytest
 import torch
 
+from cli_driver import environment, train_args, write_driver
 from mono_hdr_plugin import checkpoints
 from mono_hdr_plugin.checkpoints import load_checkpoint, save_checkpoint
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-DRIVER = f"""
-import sys
-sys.path.insert(0, {str(EXAMPLES)!r})
-import register_backbone  # registers voxel-grid
-from mono_hdr_plugin.cli import main
-main(sys.argv[1:])
-"""
 MAX_STEPS = 100_000  # never reached: every run but the last is killed
 
 
 def train_command(driver: Path, data: Path, out: Path, max_steps: int, resume: bool) -> list[str]:
-    return [sys.executable, str(driver), "train", "voxel-grid", "--data", str(data), "--out", str(out),
-            "--max-steps", str(max_steps), "--checkpoint-every", "1", "--quiet", "--no-save-renders",
-            "--max-eval-views", "1", "--backbone.resolution", "20", "--backbone.samples-per-ray", "8",
-            *(["--resume"] if resume else [])]
-
-
-def environment() -> dict:
-    return {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    return [sys.executable, str(driver), *train_args(data, out, max_steps, "--checkpoint-every", "1",
+                                                     *(["--resume"] if resume else []))]
 
 
 def checkpoint_files(out: Path) -> list[str]:
@@ -45,8 +33,7 @@ def checkpoint_files(out: Path) -> list[str]:
 
 def kill_at_random_moments(tmp_path: Path, data: Path, kills: int, seed: int) -> None:
     rng = random.Random(seed)
-    driver = tmp_path / "driver.py"
-    driver.write_text(DRIVER)
+    driver = write_driver(tmp_path)
     out = tmp_path / "run"
     latest = out / "checkpoints" / "latest.pt"
     last_step, seen_mtime = 0, 0
@@ -78,7 +65,9 @@ def kill_at_random_moments(tmp_path: Path, data: Path, kills: int, seed: int) ->
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"at step {last_step}" in result.stderr
+    assert "which is no longer running; taking it over" in result.stderr  # the killed run's claim on --out
     assert load_checkpoint(latest)["step"] == finish
+    assert checkpoint_files(out) == ["latest.pt"]  # temporary files of killed writes removed at the next start
     assert '"steps": ' + str(finish) in (out / "metrics.json").read_text()
 
 
@@ -96,8 +85,8 @@ def test_crash_inside_torch_save_keeps_previous_checkpoint(tmp_path, monkeypatch
     path = tmp_path / "checkpoints" / "latest.pt"
     save_checkpoint(path, {"step": 7, "weights": torch.arange(1000.0)})
 
-    def crashing_save(payload, target):
-        Path(target).write_bytes(b"PK\x03\x04 half a zip file")
+    def crashing_save(payload, handle):
+        handle.write(b"PK\x03\x04 half a zip file")
         raise KeyboardInterrupt("killed while saving")
 
     monkeypatch.setattr(checkpoints.torch, "save", crashing_save)

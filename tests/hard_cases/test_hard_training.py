@@ -131,16 +131,22 @@ def test_all_gaussians_pruned(tmp_path, backbone, steps):
 
 @on("voxel-grid")
 def test_constant_hdr_ground_truth(tmp_path, backbone, steps):
-    scene = make_scene(exposure=0.5, hdr_transform=lambda hdr, i: torch.full_like(hdr, 0.7))
-    assert all(v.hdr.unique().numel() == 1 for v in scene.train)
-    train_and_check(make_trainer(tmp_path, backbone, scene, steps), steps)
+    """Constant HDR ground truth carries no HDR information: warned about, left out, never scored."""
+    with pytest.warns(UserWarning, match=r"6 view\(s\) carries no HDR information.*one value \(0.7, 0.7, 0.7\)"):
+        scene = make_scene(exposure=0.5, hdr_transform=lambda hdr, i: torch.full_like(hdr, 0.7))
+    assert all(v.hdr is None for v in scene.train + scene.test)
+    metrics = train_and_check(make_trainer(tmp_path, backbone, scene, steps), steps)
+    assert metrics["hdr_psnr"] is None
 
 
 @on("gs")
 def test_all_zero_hdr_ground_truth(tmp_path, backbone, steps):
-    scene = make_scene(hdr_transform=lambda hdr, i: torch.zeros_like(hdr))
-    assert all(not v.hdr.any() and not v.image.any() for v in scene.train)
-    train_and_check(make_trainer(tmp_path, backbone, scene, steps), steps)
+    """All-zero HDR ground truth (and black photos): warned about, left out, trains finite on LDR alone."""
+    with pytest.warns(UserWarning, match=r"6 view\(s\) carries no HDR information.*is all zero"):
+        scene = make_scene(hdr_transform=lambda hdr, i: torch.zeros_like(hdr))
+    assert all(v.hdr is None and not v.image.any() for v in scene.train)
+    metrics = train_and_check(make_trainer(tmp_path, backbone, scene, steps), steps)
+    assert metrics["hdr_psnr"] is None
 
 
 @on("voxel-grid")

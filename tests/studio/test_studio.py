@@ -184,7 +184,7 @@ class TestStudioDataset:
             load_scene(DataConfig())
 
     def test_bad_exposure_index(self, tiny_demo):
-        with pytest.raises(DatasetError, match="--exposure-index must be 0, 1 or 2"):
+        with pytest.raises(ValueError, match=r"--exposure-index must be an integer in \[0, 2\], got 4"):
             to_scene_data(studio_captured_scene(tiny_demo), DataConfig(exposure_index=4))
 
 

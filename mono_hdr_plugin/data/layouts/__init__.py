@@ -33,6 +33,8 @@ def detect_layout(folder: Path) -> str:
 def read_layout(folder: str | Path, layout: str = "auto") -> CapturedScene:
     """Read a dataset folder; `layout` is a registered layout name (`mono-hdr layouts`) or "auto"."""
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise DatasetError(f"{folder}: is a file, not a folder; pass --data the dataset folder that holds it")
     if not folder.is_dir():
         raise missing(folder, "pass --data a dataset folder")
     if layout == "auto":

@@ -1,7 +1,13 @@
-"""Helpers shared by the layout readers and writers."""
+"""Helpers shared by the layout readers and writers.
+
+Every value a reader takes from a dataset file goes through one of the `json_*` checks (or
+`check_exposure`, `check_finite`), so a value of the wrong type, NaN, Inf, out of range or not
+usable as a file name is a DatasetError naming the file and the key, never a traceback.
+"""
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -10,8 +16,12 @@ from PIL import Image, UnidentifiedImageError
 
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.data.errors import DatasetError, missing
+from mono_hdr_plugin.data.io import check_readable
+from mono_hdr_plugin.validation import ANY_FINITE, Rule, numeric
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+MAX_NAME_BYTES = 255
+"""Longest file or folder name common file systems allow."""
 
 
 def natural_key(name: str) -> list:
@@ -20,22 +30,79 @@ def natural_key(name: str) -> list:
 
 
 def load_json(path: Path, fix: str):
+    if path.is_dir():
+        raise DatasetError(f"{path}: is a folder, not a JSON file; remove or rename it")
     if not path.is_file():
         raise missing(path, fix)
+    check_readable(path)
     try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise DatasetError(f"{path}: not valid JSON ({error}); repair or regenerate it") from error
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, RecursionError) as error:  # bad JSON, bad UTF-8, integers too long to read, deep nesting
+        reason = str(error).splitlines()[0][:160] if str(error) else type(error).__name__
+        raise DatasetError(f"{path}: not valid JSON ({reason}); repair or regenerate it") from error
+
+
+def shown(value) -> str:
+    """A value from a file as it appears in an error message (shortened)."""
+    text = repr(value.item() if isinstance(value, np.generic) else value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def json_object(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise DatasetError(f"{where} must be a JSON object {{...}}, got {shown(value)}")
+    return value
+
+
+def json_number(value, where: str, rule: Rule = ANY_FINITE) -> float:
+    """A finite number within `rule`, from a JSON value (booleans and strings are not numbers)."""
+    if not numeric(value):
+        raise DatasetError(f"{where} must be {rule.describe(False)}, got {shown(value)}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond float range
+        number = math.inf
+    if not math.isfinite(number):
+        raise DatasetError(f"{where} must be {rule.describe(False)}, got {shown(value)} (NaN or Inf)")
+    if not rule.accepts(number):
+        raise DatasetError(f"{where} must be {rule.describe(False)}, got {shown(value)}")
+    return number
+
+
+def json_name(value, where: str) -> str:
+    """A non-empty string that can be part of a file name here (no NUL, encodable)."""
+    if not isinstance(value, str) or not value.strip():
+        raise DatasetError(f"{where} must be a non-empty file name, got {shown(value)}")
+    try:
+        os.fsencode(value)
+    except UnicodeEncodeError:
+        raise DatasetError(f"{where} {shown(value)} is not a valid file name (broken unicode)") from None
+    if "\0" in value:
+        raise DatasetError(f"{where} {shown(value)} is not a valid file name (NUL character)")
+    if any(len(os.fsencode(part)) > MAX_NAME_BYTES for part in value.split("/")):
+        raise DatasetError(f"{where} {shown(value)} is not a valid file name (a part is over {MAX_NAME_BYTES} bytes)")
+    return value
+
+
+def json_matrix(value, where: str, rows: int, columns: int) -> np.ndarray:
+    """A rows x columns list of lists of finite numbers."""
+    if not (isinstance(value, list) and len(value) == rows
+            and all(isinstance(row, list) and len(row) == columns for row in value)):
+        raise DatasetError(f"{where} must be a {rows}x{columns} list of rows of numbers, got {shown(value)}")
+    return np.array([[json_number(item, f"{where}[{i}][{j}]") for j, item in enumerate(row)]
+                     for i, row in enumerate(value)], dtype=np.float64)
 
 
 def check_exposure(value, where: str) -> float:
     """A positive, finite exposure time in seconds, or an error naming where it came from."""
-    try:
-        exposure = float(value)
-    except (TypeError, ValueError):
-        exposure = math.nan
+    exposure = math.nan
+    if not isinstance(value, bool):
+        try:
+            exposure = float(value)
+        except (TypeError, ValueError, OverflowError):
+            pass
     if not (math.isfinite(exposure) and exposure > 0):
-        raise DatasetError(f"{where}: exposure time {value!r} is not a positive number of seconds; "
+        raise DatasetError(f"{where}: exposure time {shown(value)} is not a positive number of seconds; "
                            "fix the exposure value")
     return exposure
 
@@ -49,7 +116,10 @@ def camera_from(where: str, **fields) -> Camera:
 
 
 def check_finite(array: np.ndarray, path: Path, what: str) -> np.ndarray:
-    array = np.asarray(array, dtype=np.float64)
+    try:
+        array = np.asarray(array, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise DatasetError(f"{path}: {what} is not numeric ({error}); regenerate the file") from error
     if not np.isfinite(array).all():
         raise DatasetError(f"{path}: {what} contains NaN or Inf; re-run the pose estimation or fix the file")
     return array
@@ -57,8 +127,11 @@ def check_finite(array: np.ndarray, path: Path, what: str) -> np.ndarray:
 
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) from an image header, without decoding the pixels."""
+    if path.is_dir():
+        raise DatasetError(f"{path}: is a folder, not an image file; check the dataset's file names")
     if not path.is_file():
         raise missing(path, "check that every image the dataset lists is present")
+    check_readable(path)
     try:
         with Image.open(path) as image:
             return image.size
@@ -81,5 +154,5 @@ def check_one_size(sizes: dict[Path, tuple[int, int]], folder: Path) -> tuple[in
 
 def split_view_exposure(name: str) -> tuple[str, int] | None:
     """`<view>_<e>.<ext>` -> (view, e), or None for any other file name."""
-    match = re.fullmatch(r"(.+)_(\d+)\.[A-Za-z]+", name)
+    match = re.fullmatch(r"(.+)_([0-9]{1,9})\.[A-Za-z]+", name)
     return (match.group(1), int(match.group(2))) if match else None

@@ -14,19 +14,21 @@ name (never string order): even views train, odd views test.
 """
 
 import functools
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, Shot, bounds_from_cameras,
+from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras,
                                            bounds_from_points)
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
+from mono_hdr_plugin.data.layouts.colmap_text import check_text_model
 from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
-                                                 image_size, load_json, natural_key,
+                                                 image_size, json_name, json_object, load_json, natural_key,
                                                  split_view_exposure)
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
@@ -53,10 +55,12 @@ def _read_model(folder: Path):
     model = folder / MODEL_FOLDER
     if not any((model / f"images.{ext}").is_file() for ext in ("bin", "txt")):
         raise missing(model / "images.bin", "run COLMAP (or mono-hdr process-data) to create sparse/0")
+    check_text_model(model)
     try:
         return pycolmap.Reconstruction(str(model))
-    except Exception as error:  # noqa: BLE001 - pycolmap raises bare RuntimeError/ValueError
-        raise DatasetError(f"{model}: cannot read the COLMAP model ({error}); re-run COLMAP") from error
+    except Exception as error:  # noqa: BLE001 - pycolmap raises bare RuntimeError/ValueError/IndexError
+        reason = str(error).splitlines()[0][:200] if str(error) else type(error).__name__
+        raise DatasetError(f"{model}: cannot read the COLMAP model ({reason}); re-run COLMAP") from error
 
 
 def _camera(colmap_camera, pose, folder: Path, name: str) -> Camera:
@@ -88,9 +92,15 @@ class _ExposureSource:
 
     def __init__(self, folder: Path):
         self.json_path = folder / EXPOSURES_FILE
-        self.table = (load_json(self.json_path, "") if self.json_path.is_file() else None)
+        self.table = (json_object(load_json(self.json_path, ""), str(self.json_path))
+                      if self.json_path.exists() else None)
         self.npy_path = folder / POSES_FILE
-        self.rows = np.load(self.npy_path) if self.table is None and self.npy_path.is_file() else None
+        self.rows = None
+        if self.table is None and self.npy_path.is_file():
+            try:
+                self.rows = np.load(self.npy_path)
+            except (ValueError, OSError, EOFError) as error:
+                raise DatasetError(f"{self.npy_path}: cannot read the array ({error}); regenerate it") from error
 
     def __call__(self, name: str, image_id: int, e: int) -> float:
         if self.table is not None:
@@ -99,7 +109,7 @@ class _ExposureSource:
             return check_exposure(self.table[name], f"{self.json_path} [{name!r}]")
         if self.rows is not None:
             row = (image_id - 1) * MAX_EXPOSURES + e
-            if row >= len(self.rows) or self.rows.ndim != 2 or self.rows.shape[1] < 18:
+            if self.rows.ndim != 2 or self.rows.shape[1] < 18 or not 0 <= row < len(self.rows):
                 raise DatasetError(f"{self.npy_path}: no row {row} for {name} (shape {self.rows.shape}); "
                                    "the exposures are out of step with the COLMAP images: regenerate it")
             return check_exposure(self.rows[row, 17], f"{self.npy_path} row {row} ({name})")
@@ -132,14 +142,20 @@ def _view_shots(images: Path, name: str, image_id: int, exposures: _ExposureSour
     return sorted(shots, key=lambda shot: shot.exposure)
 
 
-def _points(model):
+def _points(model, where: Path):
+    """The model's points and colours; points with NaN/Inf coordinates are left out, with a warning."""
     if not model.points3D:
         return None, None
     entries = [point for _, point in sorted(model.points3D.items())]
     points = np.stack([point.xyz for point in entries])
     colours = np.stack([point.color for point in entries]) / 255.0
-    if not np.isfinite(points).all():
-        return None, None
+    finite = np.isfinite(points).all(-1)
+    if not finite.all():
+        warnings.warn(f"{where}: {int((~finite).sum())} of {len(points)} COLMAP points have NaN/Inf coordinates "
+                      "and are left out of the initialisation; re-run COLMAP to get them back", stacklevel=3)
+        points, colours = points[finite], colours[finite]
+        if not len(points):
+            return None, None
     return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
 
 
@@ -148,7 +164,13 @@ def read(folder: Path) -> CapturedScene:
     model = _read_model(folder)
     images = _image_folder(folder)
     exposures = _ExposureSource(folder)
-    entries = sorted(model.images.items(), key=lambda item: natural_key(item[1].name))
+    try:
+        entries = sorted(model.images.items(), key=lambda item: natural_key(item[1].name))
+    except UnicodeDecodeError as error:
+        raise DatasetError(f"{folder / MODEL_FOLDER}: an image name is not UTF-8 text ({error.reason}); rename the "
+                           "images and re-run COLMAP") from error
+    for _, image in entries:
+        json_name(image.name, f"{folder / MODEL_FOLDER}: image name")
     if not entries:
         raise DatasetError(f"{folder / MODEL_FOLDER}: the COLMAP model has no images; re-run COLMAP")
     views, sizes = [], {}
@@ -160,14 +182,14 @@ def read(folder: Path) -> CapturedScene:
         exr = folder / "exr" / f"{token}.exr"
         views.append(CapturedView(view_id=view_id, camera=camera, split="train" if view_id % 2 == 0 else "test",
                                   shots=shots, name=token,
-                                  hdr=functools.partial(read_exr, exr) if exr.is_file() else None))
+                                  hdr=ImageFile(exr, read_exr) if exr.is_file() else None))
     width, height = check_one_size(sizes, images)
     for view in views:
         if (view.camera.width, view.camera.height) != (width, height):
             raise DatasetError(f"{folder / MODEL_FOLDER}: camera of {view.shots[0].name} is "
                                f"{view.camera.width}x{view.camera.height} but the photos are {width}x{height}; "
                                "re-run COLMAP on these images or resize them")
-    points, colours = _points(model)
+    points, colours = _points(model, folder / MODEL_FOLDER)
     bounds = bounds_from_points(points.numpy()) if points is not None else \
         bounds_from_cameras([v.camera for v in views])
     return CapturedScene(name=folder.name, views=views, bounds_min=bounds[0], bounds_max=bounds[1],

@@ -49,7 +49,7 @@ def _load_rows(folder: Path, names: list[str]) -> np.ndarray:
     path = folder / POSES_FILE
     try:
         rows = np.load(path)
-    except (ValueError, OSError) as error:
+    except (ValueError, OSError, EOFError) as error:
         raise DatasetError(f"{path}: cannot read the array ({error}); regenerate it") from error
     if rows.ndim != 2 or rows.shape[1] != COLUMNS:
         raise DatasetError(f"{path}: shape {rows.shape}, expected (images, {COLUMNS}) "
@@ -81,6 +81,10 @@ def read(folder: Path) -> CapturedScene:
     for view_id, token in enumerate(sorted(groups, key=natural_key)):
         (first_name, first_row), *_ = groups[token]
         pose = first_row[:15].reshape(3, 5)
+        if not (pose[:, 4] > 0).all():
+            raise DatasetError(f"{folder / POSES_FILE} row of {first_name}: image height, width and focal length "
+                               f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
+                               "regenerate the file")
         focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
         camera = camera_from(f"{folder / POSES_FILE} row of {first_name}",
                              c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(), fx=focal, fy=focal,

@@ -9,20 +9,24 @@
 
 import functools
 import math
+import re
 from pathlib import Path
 
 import torch
 
 from mono_hdr_plugin.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
-from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
+from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
-from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
-                                                 image_size, load_json)
+from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_one_size, image_size, json_matrix,
+                                                 json_name, json_number, json_object, load_json)
+from mono_hdr_plugin.validation import between
 
 SPLITS = ("train", "test")
 MAX_EXPOSURES = 5
+FIELD_OF_VIEW = between(0, math.pi, low_open=True, high_open=True)
+"""camera_angle_x, in radians: a pinhole camera sees less than half the sphere."""
 
 
 def detect(folder: Path) -> bool:
@@ -31,7 +35,7 @@ def detect(folder: Path) -> bool:
 
 def _exr_index(file_path: str) -> int | None:
     token = file_path.split("_")[-1]
-    return int(token) if token.isdigit() else None
+    return int(token) if re.fullmatch(r"[0-9]{1,9}", token) else None
 
 
 def _frame_shots(folder: Path, file_path: str, exposures: dict, exposure_file: Path) -> list[Shot]:
@@ -58,29 +62,39 @@ def _frame_shots(folder: Path, file_path: str, exposures: dict, exposure_file: P
 def _read_split(folder: Path, split: str, first_view_id: int):
     transforms_file = folder / f"transforms_{split}.json"
     exposure_file = folder / f"exposure_{split}.json"
-    transforms = load_json(transforms_file, f"an HDR-NeRF synthetic scene needs {transforms_file.name}")
-    exposures = load_json(exposure_file, f"write {exposure_file.name}: {{image name: seconds}}")
-    frames = transforms.get("frames") or []
-    if "camera_angle_x" not in transforms or not frames:
+    transforms = json_object(load_json(transforms_file, f"an HDR-NeRF synthetic scene needs {transforms_file.name}"),
+                             str(transforms_file))
+    exposures = json_object(load_json(exposure_file, f"write {exposure_file.name}: {{image name: seconds}}"),
+                            str(exposure_file))
+    frames = transforms.get("frames")
+    if "camera_angle_x" not in transforms or not isinstance(frames, list) or not frames:
         raise DatasetError(f"{transforms_file}: needs 'camera_angle_x' and a non-empty 'frames' list")
-    listed = {f"{frame['file_path']}_{e}.png" for frame in frames for e in range(MAX_EXPOSURES)}
+    angle = json_number(transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)",
+                        FIELD_OF_VIEW)
+    poses = []
+    for index, frame in enumerate(frames):
+        where = f"{transforms_file}: frames[{index}]"
+        frame = json_object(frame, where)
+        if "file_path" not in frame or "transform_matrix" not in frame:
+            raise DatasetError(f"{where} needs 'file_path' and 'transform_matrix'; add them or remove the frame")
+        poses.append((json_name(frame["file_path"], f"{where}.file_path"),
+                      json_matrix(frame["transform_matrix"], f"{where}.transform_matrix", 4, 4)))
+    listed = {f"{file_path}_{e}.png" for file_path, _ in poses for e in range(MAX_EXPOSURES)}
     stray = sorted(set(exposures) - listed)
     if stray:
         raise DatasetError(f"{exposure_file}: entries {stray[:3]} match no frame of {transforms_file.name}; "
                            "the exposure file is out of step with the frames: regenerate it")
     views = []
-    for offset, frame in enumerate(frames):
-        shots = _frame_shots(folder, frame["file_path"], exposures, exposure_file)
-        c2w_gl = check_finite(frame["transform_matrix"], transforms_file,
-                              f"transform_matrix of {frame['file_path']!r}")
-        views.append((first_view_id + offset, split, frame["file_path"], c2w_gl, shots))
-    return float(transforms["camera_angle_x"]), views
+    for offset, (file_path, c2w_gl) in enumerate(poses):
+        shots = _frame_shots(folder, file_path, exposures, exposure_file)
+        views.append((first_view_id + offset, split, file_path, c2w_gl, shots))
+    return angle, views
 
 
 def _hdr_source(folder: Path, split: str, file_path: str):
     index = _exr_index(file_path)
     path = folder / f"{split}_hdr" / f"hdr_{index:03d}.exr" if index is not None else None
-    return functools.partial(read_exr, path) if path is not None and path.is_file() else None
+    return ImageFile(path, read_exr) if path is not None and path.is_file() else None
 
 
 def read(folder: Path) -> CapturedScene:

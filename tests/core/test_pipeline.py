@@ -1,0 +1,112 @@
+"""Pipeline: optimiser groups and their schedules, chunked rendering, eval mode, delegation."""
+
+import pytest
+import torch
+
+from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
+from mono_hdr_plugin.methods import HdrMethod, MethodConfig
+from mono_hdr_plugin.pipeline import Pipeline
+
+
+def pipeline_for(method: str = "mono", **method_options) -> Pipeline:
+    pipeline = Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method, **method_options),
+                               known_scene().scene_info())
+    zero_method(pipeline)
+    return pipeline
+
+
+class TestParameterGroups:
+    def test_groups_are_tagged_with_their_owner(self):
+        pipeline = pipeline_for()
+        groups = pipeline.parameter_groups()
+        assert [(g["name"], g["owner"]) for g in groups] == [("backbone", "backbone"), ("method", "method")]
+        assert groups[0]["params"] == [pipeline.backbone.unused]
+        assert {id(p) for p in groups[1]["params"]} == {id(p) for p in pipeline.method.parameters()}
+        assert groups[1]["lr"] == 5e-4
+
+    def test_a_name_used_twice_is_refused(self, monkeypatch):
+        pipeline = pipeline_for()
+        monkeypatch.setattr(pipeline.method, "parameter_groups",
+                            lambda: [{"name": "backbone", "params": [], "lr": 1.0}])
+        with pytest.raises(ValueError, match="'backbone' is used by both the backbone 'known-render' and the method"):
+            pipeline.parameter_groups()
+
+    def test_learning_rate_follows_the_owner_schedule(self):
+        pipeline = pipeline_for("hdr-nerf", crf_warmup_steps=10)
+        groups = pipeline.parameter_groups()
+        for group in groups:
+            group["base_lr"] = 2.0
+        backbone_group, method_group = groups
+        assert pipeline.learning_rate(method_group, 0) == pytest.approx(0.2)  # CRF warm-up: (0 + 1) / 10
+        assert pipeline.learning_rate(method_group, 4) == pytest.approx(1.0)
+        assert pipeline.learning_rate(method_group, 50) == pytest.approx(2.0)
+        assert pipeline.learning_rate(backbone_group, 0) == 2.0
+
+    def test_run_length_reaches_the_backbone(self):
+        pipeline = pipeline_for()
+        pipeline.set_run_length(123)
+        assert pipeline.backbone.max_steps == 123
+
+
+class TestRender:
+    @pytest.mark.parametrize("chunk", [None, 37, 256])
+    @pytest.mark.parametrize("method", ["mono", "hdr-gs"])
+    def test_whole_image_in_chunks_is_the_closed_form(self, monkeypatch, chunk, method):
+        pipeline = pipeline_for(method)
+        monkeypatch.setattr(pipeline.backbone, "render_chunk", chunk)
+        calls = []
+        render = pipeline.backbone.render_ldr_features
+        monkeypatch.setattr(pipeline.backbone, "render_ldr_features",
+                            lambda camera: calls.append(camera.output_shape) or render(camera))
+        camera = camera_at(1.0)
+        output = pipeline.render(camera, 0.5)
+        ldr, hdr = expected_render(camera, method)
+        assert output.ldr.shape == output.hdr.shape == (16, 16, 3)
+        torch.testing.assert_close(output.ldr.double(), torch.from_numpy(ldr), rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(output.hdr.double(), torch.from_numpy(hdr), rtol=1e-5, atol=1e-6)
+        expected_calls = [(16, 16)] if chunk is None else [(min(chunk, 256 - i),) for i in range(0, 256, chunk)]
+        assert calls == expected_calls
+        assert not output.hdr.requires_grad
+
+    def test_training_forward_returns_features_and_images(self):
+        pipeline = pipeline_for()
+        camera = camera_at(0.0)
+        features, output = pipeline(camera, 0.5)
+        ldr, hdr = expected_render(camera, "mono")
+        torch.testing.assert_close(features.colors.reshape(16, 16, 3).double(), torch.from_numpy(ldr))
+        torch.testing.assert_close(output.hdr.double(), torch.from_numpy(hdr), rtol=1e-5, atol=1e-6)
+        assert output.ldr_from_hdr is not None
+
+
+class TestModes:
+    def test_evaluating_restores_the_previous_mode(self):
+        pipeline = pipeline_for()
+        assert pipeline.training
+        with pipeline.evaluating() as same:
+            assert same is pipeline and not pipeline.training and not pipeline.method.training
+        assert pipeline.training and pipeline.backbone.training
+        pipeline.eval()
+        with pipeline.evaluating():
+            assert not pipeline.training
+        assert not pipeline.training
+
+    def test_mode_restored_after_an_error(self):
+        pipeline = pipeline_for()
+        with pytest.raises(RuntimeError), pipeline.evaluating():
+            raise RuntimeError("render failed")
+        assert pipeline.training
+
+
+class RecordingBackbone(KnownRenderBackbone):
+    def after_step(self, step, features, optimizer):
+        self.seen = (step, features, optimizer)
+
+
+def test_after_step_and_losses_are_delegated():
+    scene = known_scene()
+    pipeline = Pipeline("known-render", RecordingBackbone(KnownRenderConfig(), scene.scene_info()),
+                        HdrMethod(MethodConfig(), "mse"))
+    sentinel = object()
+    pipeline.after_step(7, "features", sentinel)
+    assert pipeline.backbone.seen == (7, "features", sentinel)
+    assert pipeline.method_name == "mono" and pipeline.backbone_name == "known-render"
