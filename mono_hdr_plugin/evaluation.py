@@ -23,7 +23,7 @@ def first_per_camera(views: list[View]) -> list[View]:
 def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None) -> list[View]:
     """Test views at exposures the method can render, from the first `max_eval_views` cameras."""
     train_exposures = set(scene.train_exposures)
-    views = [v for v in scene.test if pipeline.method.renders_any_exposure or v.exposure in train_exposures]
+    views = [v for v in scene.test if pipeline.renders_any_exposure or v.exposure in train_exposures]
     if not views:
         raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
                          f"({sorted(train_exposures)}) for method {pipeline.method_name!r}")
@@ -50,10 +50,13 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
     except LpipsUnavailable as reason:
         lpips_model, lpips_skipped = None, str(reason)
     hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
+    # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
+    fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
     rows: list[dict[str, Any]] = []
     with pipeline.evaluating():
         for view in views:
-            output = pipeline.render(view.camera, view.exposure)
+            output = (pipeline.render_matching(view.camera, view.image) if view.name in fitted
+                      else pipeline.render(view.camera, view.exposure))
             ldr = output.ldr.clamp(0.0, 1.0)
             row = {"view": view.stem, "view_id": view.view_id, "exposure": view.exposure,
                    "ldr_psnr": psnr(ldr, view.image), "ldr_ssim": ssim(ldr.double(), view.image.double()).item()}
@@ -78,6 +81,7 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
         "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
         "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
         "test_views": len({v.view_id for v in views}),
+        "ldr_exposure_fitted": sum(view.name in fitted for view in views),
     }
     for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
         values = [row[key] for row in rows if key in row]

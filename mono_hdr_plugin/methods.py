@@ -7,7 +7,6 @@ Methods are plugins: `@register_method("name")` on an HdrMethod subclass, or the
 `mono_hdr.methods` entry-point group; `mono-hdr methods` lists them.
 """
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
@@ -110,7 +109,8 @@ class HdrMethod(nn.Module):
         self.loss_kind = loss_kind if config.loss == "auto" else config.loss
         self.beta = DEFAULT_BETA[loss_kind] if config.beta is None else config.beta
 
-    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+    def forward(self, features: LdrFeatures, exposure: float | Tensor) -> MethodOutput:
+        """Images at `exposure` seconds (a tensor when the exposure is learned: gradients reach it)."""
         raise NotImplementedError
 
     def render(self, features: LdrFeatures, exposure: float) -> MethodOutput:
@@ -209,9 +209,9 @@ class CrfBaseline(HdrMethod):
         super().__init__(config, loss_kind)
         self.crf = PerChannelCRF(config.hidden)
 
-    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+    def forward(self, features: LdrFeatures, exposure: float | Tensor) -> MethodOutput:
         log_radiance = features.raw_colors.clamp(max=MAX_LOG_RADIANCE)
-        ldr_colors = self.crf(log_radiance + math.log(exposure))
+        ldr_colors = self.crf(log_radiance + torch.log(torch.as_tensor(exposure, dtype=log_radiance.dtype)))
         image = features.composite(torch.cat([ldr_colors, torch.exp(log_radiance)], dim=-1))
         return MethodOutput(ldr=image[..., :3], hdr=image[..., 3:])
 

@@ -16,28 +16,32 @@ from torch import nn
 
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.exposure import ViewExposures
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
 from mono_hdr_plugin.registry import get_backbone
 
-OWNERS = ("backbone", "method")
+OWNERS = ("backbone", "method", "exposures")
 
 
 class Pipeline(nn.Module):
-    """`backbone` renders per-primitive LDR features; `method` lifts them to HDR and scores them."""
+    """`backbone` renders per-primitive LDR features; `method` lifts them to HDR and scores them;
+    `exposures` (optional, mono_hdr_plugin.exposure) gives each training view its own exposure."""
 
-    def __init__(self, backbone_name: str, backbone: Backbone, method: HdrMethod):
+    def __init__(self, backbone_name: str, backbone: Backbone, method: HdrMethod,
+                 exposures: ViewExposures | None = None):
         super().__init__()
         self.backbone_name = backbone_name
         self.backbone = backbone
         self.method = method
+        self.exposures = exposures
 
     @classmethod
     def create(cls, backbone_name: str, backbone_config: Any, method_config: MethodConfig,
-               scene: SceneInfo) -> "Pipeline":
+               scene: SceneInfo, exposures: ViewExposures | None = None) -> "Pipeline":
         """A fresh pipeline: the registered backbone `backbone_name` and the method the config names."""
         backbone_class = get_backbone(backbone_name)
         backbone = backbone_class(backbone_config, scene)
-        return cls(backbone_name, backbone, build_method(method_config, backbone_class.loss_kind))
+        return cls(backbone_name, backbone, build_method(method_config, backbone_class.loss_kind), exposures)
 
     @property
     def method_name(self) -> str:
@@ -51,6 +55,8 @@ class Pipeline(nn.Module):
         """
         groups, seen = [], set()
         for owner in OWNERS:
+            if getattr(self, owner) is None:
+                continue
             for group in getattr(self, owner).parameter_groups():
                 if group["name"] in seen:
                     raise ValueError(f"optimiser group name {group['name']!r} is used by both the backbone "
@@ -61,16 +67,38 @@ class Pipeline(nn.Module):
 
     def learning_rate(self, group: dict, step: int) -> float:
         """The learning rate of an optimiser group (from `parameter_groups`) at `step`."""
-        owner: Backbone | HdrMethod = getattr(self, group["owner"])
+        owner: Backbone | HdrMethod | ViewExposures = getattr(self, group["owner"])
         return owner.learning_rate(group["name"], step, group["base_lr"])
 
     def set_run_length(self, steps: int) -> None:
         self.backbone.set_run_length(steps)
 
-    def forward(self, camera: Camera, exposure: float) -> tuple[LdrFeatures, MethodOutput]:
-        """One training render: the backbone's features (for after_step) and the method's images."""
+    @property
+    def renders_any_exposure(self) -> bool:
+        """Whether LDR renders follow the requested exposure: methods that take exposure, and any
+        method once views have their own exposures (Mono-HDR through the brightness term)."""
+        return self.method.renders_any_exposure or self.exposures is not None
+
+    def _lift(self, features: LdrFeatures, exposure: float, view: int | None, training: bool) -> MethodOutput:
+        """The method's images at `exposure`, or at training view `view`'s own exposure."""
+        lift = self.method.render if training else self.method
+        if self.exposures is None:
+            return lift(features, exposure)
+        log_relative = self.exposures.log_relative(view, exposure)
+        if self.method.renders_any_exposure:
+            return lift(features, self.exposures.reference_exposure * torch.exp(log_relative))
+        output = lift(features, exposure)
+        output.ldr = self.exposures.brighten(output.ldr, log_relative)
+        output.auxiliary_ldr = [self.exposures.brighten(aux, log_relative) for aux in output.auxiliary_ldr]
+        if output.ldr_from_hdr is not None:
+            output.ldr_from_hdr = self.exposures.brighten(output.ldr_from_hdr, log_relative)
+        return output
+
+    def forward(self, camera: Camera, exposure: float, view: int | None = None) -> tuple[LdrFeatures, MethodOutput]:
+        """One training render: the backbone's features (for after_step) and the method's images, at
+        training view `view`'s own (possibly learned) exposure when views have their own."""
         features = self.backbone.render_ldr_features(camera)
-        return features, self.method.render(features, exposure)
+        return features, self._lift(features, exposure, view, training=True)
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, torch.Tensor]:
         """The method's loss terms and the backbone's regularisers; the training loss is their sum."""
@@ -89,10 +117,19 @@ class Pipeline(nn.Module):
     @torch.no_grad()
     def render(self, camera: Camera, exposure: float) -> MethodOutput:
         """A whole image at `exposure` seconds: ldr and hdr [H, W, 3]."""
-        parts = [self.method(self.backbone.render_ldr_features(part), exposure) for part in self.camera_chunks(camera)]
+        parts = [self._lift(self.backbone.render_ldr_features(part), exposure, None, training=False)
+                 for part in self.camera_chunks(camera)]
         shape = (camera.height, camera.width, 3)
         return MethodOutput(ldr=torch.cat([p.ldr for p in parts]).reshape(shape),
                             hdr=torch.cat([p.hdr for p in parts]).reshape(shape))
+
+    @torch.no_grad()
+    def render_matching(self, camera: Camera, image: torch.Tensor) -> MethodOutput:
+        """A whole image whose LDR is brightened to match the photo `image` [H, W, 3] as well as one
+        exposure can: for views whose exposure is unknown (needs `exposures`)."""
+        output = self.render(camera, float(self.exposures.reference_exposure))
+        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image))
+        return output
 
     @contextlib.contextmanager
     def evaluating(self) -> Iterator["Pipeline"]:

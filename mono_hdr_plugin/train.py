@@ -36,6 +36,7 @@ from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.evaluation import evaluate
+from mono_hdr_plugin.exposure import ExposureConfig, ViewExposures, build_view_exposures
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.methods import METHODS, HdrMethod, MethodConfig, Targets
 from mono_hdr_plugin.metrics import psnr
@@ -62,6 +63,7 @@ class TrainConfig:
     backbone: Any
     data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DataConfig)
     hdr: Annotated[MethodConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=MethodConfig)
+    exposure: Annotated[ExposureConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExposureConfig)
     preset: str | None = None
     """Start from a named preset of the backbone (listed by `mono-hdr backbones`; default: its
     first); other flags override it."""
@@ -189,7 +191,8 @@ class Trainer:
         method_config = config.hdr
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
             method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
-        self.pipeline = Pipeline.create(backbone_name, config.backbone, method_config, scene.scene_info())
+        self.pipeline = Pipeline.create(backbone_name, config.backbone, method_config, scene.scene_info(),
+                                        build_view_exposures(config.exposure, scene))
         self.run_length = config.max_steps
         self.pipeline.set_run_length(self.run_length)
         self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
@@ -272,7 +275,7 @@ class Trainer:
         camera, targets = self._batch(view, self.hdr_views[index])
         for group in self.optimizer.param_groups:
             group["lr"] = self.pipeline.learning_rate(group, self.step)
-        features, output = self.pipeline(camera, targets.exposure)
+        features, output = self.pipeline(camera, targets.exposure, view=index)
         terms = self.pipeline.losses(output, targets, self.step)
         loss = torch.stack(list(terms.values())).sum()
         loss.backward()
@@ -350,6 +353,8 @@ class Trainer:
                     self.save()
                 raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
             self.save()
+            if self.pipeline.exposures is not None:
+                write_json(config.out / "learned_exposures.json", self.pipeline.exposures.report())
         try:
             metrics = self.evaluate(save_renders=config.save_renders)
             write_json(config.out / "metrics.json", metrics)
@@ -623,7 +628,8 @@ def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: P
         from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
 
         scene = load_scene(config.data)
-    pipeline = Pipeline.create(payload["backbone_name"], config.backbone, config.hdr, scene.scene_info())
+    pipeline = Pipeline.create(payload["backbone_name"], config.backbone, config.hdr, scene.scene_info(),
+                               ViewExposures.from_state_dict(payload["pipeline"]))
     pipeline.set_run_length(payload["run_length"])
     try:
         pipeline.load_state_dict(payload["pipeline"])

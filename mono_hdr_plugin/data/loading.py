@@ -78,7 +78,10 @@ def check_same_size(scene: CapturedScene, views: list[View]) -> None:
 
 
 def warn_partial_hdr(scene: CapturedScene) -> None:
-    """Some views with HDR ground truth and some without is almost always a missing EXR file: say which."""
+    """Some views with HDR ground truth and some without is almost always a missing EXR file: say which
+    (unless the layout says so by design: a process-data capture has HDR at its bracketed views only)."""
+    if scene.metadata.get("partial_hdr_expected"):
+        return
     lacking = [view.name or str(view.view_id) for view in scene.views if view.hdr is None]
     if 0 < len(lacking) < len(scene.views):
         listing = ", ".join(lacking[:5]) + (f" and {len(lacking) - 5} more" if len(lacking) > 5 else "")

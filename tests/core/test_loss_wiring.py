@@ -99,9 +99,9 @@ class StepProbe:
             self.batch = batch(view, use_hdr)
             return self.batch
 
-        def record_forward(camera, exposure):
+        def record_forward(camera, exposure, view=None):
             self.rng = torch.get_rng_state()
-            return forward(camera, exposure)
+            return forward(camera, exposure, view=view)
 
         def record_gradients(*args, **kwargs):
             self.gradients = {self.names[id(p)]: p.grad.clone() for group in trainer.optimizer.param_groups

@@ -11,15 +11,12 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image
-from PIL.TiffImagePlugin import IFDRational
 
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.studio.capture import capture
 from mono_hdr_plugin.studio.render import render_scene
 from mono_hdr_plugin.studio.scene import CameraRig, StudioScene, box, diffuse, panel, place, rgb, rotate, scale, translate
-
-EXIF_IFD, TAG_MAKE, TAG_MODEL, TAG_ORIENTATION = 0x8769, 0x010F, 0x0110, 0x0112
-TAG_EXPOSURE_TIME, TAG_F_NUMBER, TAG_ISO, TAG_FOCAL_35MM = 0x829A, 0x829D, 0x8827, 0xA405
+from mono_hdr_plugin.studio.shoot import save_jpeg
 
 
 def noise_texture(path: Path, size: int = 512, seed: int = 0) -> Path:
@@ -66,28 +63,6 @@ class PhotoShoot:
     names: list[str]
 
 
-def exif_bytes(exposure: Fraction | None = None, iso: int | None = None, f_number: Fraction | None = None,
-               focal_35mm: int | None = None, model: str | None = "StudioCam", orientation: int | None = None):
-    exif = Image.Exif()
-    if model:
-        exif[TAG_MAKE], exif[TAG_MODEL] = "Mono-HDR", model
-    if orientation:
-        exif[TAG_ORIENTATION] = orientation
-    details = exif.get_ifd(EXIF_IFD)
-    for tag, value in ((TAG_EXPOSURE_TIME, exposure), (TAG_F_NUMBER, f_number), (TAG_ISO, iso),
-                       (TAG_FOCAL_35MM, focal_35mm)):
-        if value is not None:  # Pillow writes rationals from IFDRational, not Fraction
-            details[tag] = IFDRational(value.numerator, value.denominator) if isinstance(value, Fraction) else value
-    return exif
-
-
-def save_jpeg(path: Path, pixels: np.ndarray, **exif) -> Path:
-    """float [H, W, 3] in [0, 1] -> a quality-95 JPEG carrying the given EXIF fields."""
-    Image.fromarray((np.clip(pixels, 0, 1) * 255).round().astype(np.uint8)).save(
-        path, quality=95, exif=exif_bytes(**exif))
-    return path
-
-
 def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoShoot:
     """Render (cached) and photograph view i at exposures[i % len], EXIF as a real camera writes it."""
     render = render_scene(scene)
@@ -107,17 +82,3 @@ def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoS
         names.append(name)
         times.append(float(exposure))
     return PhotoShoot(folder, cameras, times, names)
-
-
-def umeyama(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity (scale, rotation [3, 3], translation [3]) that best maps points [N, 3] onto target."""
-    source_mean, target_mean = source.mean(0), target.mean(0)
-    centred_source, centred_target = source - source_mean, target - target_mean
-    u, singular, vt = np.linalg.svd(centred_target.T @ centred_source / len(source))
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # a reflection is not a rotation
-        sign[2, 2] = -1
-    rotation = u @ sign @ vt
-    scale_factor = (singular * np.diag(sign)).sum() / (centred_source**2).sum(1).mean()
-    return scale_factor, rotation, target_mean - scale_factor * rotation @ source_mean
-

@@ -14,10 +14,13 @@ from mono_hdr_plugin.cli import main as cli_main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.process_data import (PhotoExif, PhotoRecord, ProcessDataConfig, assign_exposures,
-                                          check_one_camera, check_registered, exposure_warnings, find_photos, load_photo,
-                                          process_data, read_exif, read_exposure_csv, relative_exposure)
-from process_data_photos import save_jpeg, shoot, textured_scene, umeyama
+from mono_hdr_plugin.photos.exif import PhotoExif, read_exif
+from mono_hdr_plugin.process_data import (PhotoRecord, ProcessDataConfig, assign_exposures, check_one_camera,
+                                          check_registered, exposure_warnings, find_photos, load_photo, process_data,
+                                          read_exposure_csv, relative_exposure)
+from mono_hdr_plugin.studio.shoot import save_jpeg
+from mono_hdr_plugin.studio.alignment import similarity
+from process_data_photos import shoot, textured_scene
 
 ROTATION_LIMIT_DEG = 1.0
 POSITION_LIMIT = 0.01
@@ -31,7 +34,7 @@ def camera_errors(out, cameras) -> tuple[float, float]:
     truth = [cameras[int(view.name.split("_")[0])] for view in views]
     estimated = np.array([view.camera.center.double().numpy() for view in views])
     known = np.array([camera.center.double().numpy() for camera in truth])
-    scale, rotation, translation = umeyama(estimated, known)
+    scale, rotation, translation = similarity(estimated, known)
     aligned = scale * estimated @ rotation.T + translation
     position = np.linalg.norm(aligned - known, axis=1).max() / np.linalg.norm(known.max(0) - known.min(0))
     angles = []
@@ -144,7 +147,14 @@ class TestFindPhotos:
     def test_natural_order_and_suffixes(self, tmp_path):
         for name in ("b10.JPG", "b2.png", "b1.tiff", "notes.txt", ".hidden.jpg"):
             (tmp_path / name).write_bytes(b"")
-        assert [p.name for p in find_photos(tmp_path)] == ["b1.tiff", "b2.png", "b10.JPG"]
+        photos, ignored = find_photos(tmp_path)
+        assert [p.name for p in photos] == ["b1.tiff", "b2.png", "b10.JPG"] and ignored == []
+
+    def test_raw_twin_is_preferred(self, tmp_path):
+        for name in ("a.CR2", "a.JPG", "b.jpg", "c.nef"):
+            (tmp_path / name).write_bytes(b"")
+        photos, ignored = find_photos(tmp_path)
+        assert [p.name for p in photos] == ["a.CR2", "b.jpg", "c.nef"] and ignored == ["a.JPG"]
 
     def test_empty_folder(self, tmp_path):
         with pytest.raises(DatasetError, match="no photos found"):
@@ -246,6 +256,14 @@ class TestAssignExposures:
         exifs = [PhotoExif(exposure_time=0.5), PhotoExif(), PhotoExif()]
         exposures, _ = assign_exposures(["a", "b", "c"], exifs, {"b": 0.25}, 0.125)
         assert exposures == [(0.5, "exif"), (0.25, "csv"), (0.125, "flag")]
+
+    def test_no_exposure_anywhere_is_unknown(self):
+        exposures, _ = assign_exposures(["a", "b"], [PhotoExif(), PhotoExif()], {}, None)
+        assert exposures == [(None, "unknown"), (None, "unknown")]
+
+    def test_raw_metadata_is_named(self):
+        exposures, _ = assign_exposures(["a.dng"], [PhotoExif(exposure_time=0.5)], {}, None, raw=[True])
+        assert exposures == [(0.5, "raw")]
 
     def test_missing_exposure_says_what_to_pass(self):
         with pytest.raises(DatasetError, match=r"b, c.*--exposure SECONDS.*--exposure-csv"):
@@ -349,7 +367,7 @@ class TestExposureWarnings:
     @staticmethod
     def photos(*exposures):
         return [PhotoRecord(source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=e, exposure_source="exif",
-                            registered=True) for i, e in enumerate(exposures)]
+                            registered=True, view=True) for i, e in enumerate(exposures)]
 
     def test_single_exposure(self):
         notes = exposure_warnings(self.photos(0.01, 0.01, 0.01), {"iso": None, "f_number": None})
@@ -364,6 +382,13 @@ class TestExposureWarnings:
         photos[0].iso = 100.0
         notes = exposure_warnings(photos, {"iso": 100.0, "f_number": None})
         assert len(notes) == 1 and "1.jpg" in notes[0] and "reference value was assumed" in notes[0]
+
+    def test_unknown_exposures(self):
+        photos = self.photos(1.0, 1.0)
+        for photo in photos:
+            photo.exposure, photo.exposure_source = None, "unknown"
+        notes = exposure_warnings(photos, {"iso": None, "f_number": None})
+        assert len(notes) == 1 and "learns them" in notes[0]
 
     def test_moderate_range_is_quiet(self):
         assert exposure_warnings(self.photos(1 / 60, 1 / 15), {"iso": None, "f_number": None}) == []

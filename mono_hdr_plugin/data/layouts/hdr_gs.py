@@ -2,15 +2,20 @@
 
     sparse/0/{cameras,images,points3D}.bin|.txt   COLMAP model, one image entry per view
     images/ (or input_images/)                    <view>_<e>.<ext>, e = 0..4 (t1..t5)
-    exr/<view>.exr                                HDR ground truth (synthetic scenes)
-    exposures.json (optional)                     {image name: seconds}
+    exr/<view>.exr                                HDR ground truth (synthetic scenes, merged brackets)
+    exposures.json (optional)                     {image name: seconds, or null when unknown}
     poses_bounds_exps.npy (real scenes)           column 17 = exposure, row 5 (id - 1) + e
+    splits.json (optional)                        {"test": [image names]}: the other views train
+    camera_response.json (optional)               the camera's response curve (process-data)
+    process_data.json (optional)                  process-data's report: HDR only at bracketed views
 
 Exposure of a photo: exposures.json if present, else the npy row, else the synthetic
 t1..t5 = 0.125, 0.5, 2, 8, 32 s that the official code hard-codes. With exposures.json
 (`mono-hdr process-data` output) a view is its own image entry plus any `<view>_<e>`
-siblings the JSON lists; photos can be at any exposure. Views are ordered by their numeric
-name (never string order): even views train, odd views test.
+siblings the JSON lists; photos can be at any exposure, and a null exposure (unknown: no EXIF)
+reads as 1 s with the view named in the scene's metadata["unknown_exposures"], for the trainer
+to learn. Views are ordered by their numeric name (never string order); splits.json names the
+test views, without it even views train and odd views test.
 """
 
 import functools
@@ -33,6 +38,12 @@ from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, ch
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 EXPOSURES_FILE = "exposures.json"
+SPLITS_FILE = "splits.json"
+RESPONSE_FILE = "camera_response.json"
+REPORT_FILE = "process_data.json"
+"""Written by process-data: its captures have HDR only at the bracketed viewpoints, by design."""
+UNKNOWN_EXPOSURE = 1.0
+"""Seconds given to a photo whose exposure is unknown (null in exposures.json)."""
 POSES_FILE = "poses_bounds_exps.npy"
 MODEL_FOLDER = Path("sparse") / "0"
 MAX_EXPOSURES = 5
@@ -101,11 +112,16 @@ class _ExposureSource:
                 self.rows = np.load(self.npy_path)
             except (ValueError, OSError, EOFError) as error:
                 raise DatasetError(f"{self.npy_path}: cannot read the array ({error}); regenerate it") from error
+        self.unknown: list[str] = []
 
     def __call__(self, name: str, image_id: int, e: int) -> float:
         if self.table is not None:
             if name not in self.table:
-                raise DatasetError(f"{self.json_path}: no exposure for {name!r}; add it (seconds)")
+                raise DatasetError(f"{self.json_path}: no exposure for {name!r}; add it (seconds, or null "
+                                   "when unknown)")
+            if self.table[name] is None:
+                self.unknown.append(name)
+                return UNKNOWN_EXPOSURE
             return check_exposure(self.table[name], f"{self.json_path} [{name!r}]")
         if self.rows is not None:
             row = (image_id - 1) * MAX_EXPOSURES + e
@@ -159,6 +175,33 @@ def _points(model, where: Path):
     return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
 
 
+def _response(folder: Path) -> list | None:
+    """The response table [256][3] (code value k / 255 -> linear) of camera_response.json, if any."""
+    path = folder / RESPONSE_FILE
+    if not path.is_file():
+        return None
+    table = np.asarray(load_json(path, "delete it; process-data writes it again").get("linear_rgb", []), np.float64)
+    if table.shape != (256, 3) or not np.isfinite(table).all() or (np.diff(table, axis=0) <= 0).any():
+        raise DatasetError(f"{path}: linear_rgb must be 256 increasing [r, g, b] rows; delete the file (sRGB is "
+                           "then assumed) or run process-data again")
+    return table.tolist()
+
+
+def _test_names(folder: Path, names: list[str]) -> set[str] | None:
+    """The image names splits.json holds out for testing; None without the file."""
+    path = folder / SPLITS_FILE
+    if not path.is_file():
+        return None
+    splits = load_json(path, 'write {"test": [image names]}')
+    test = splits.get("test") if isinstance(splits, dict) else None
+    if not isinstance(test, list):
+        raise DatasetError(f'{path}: expected {{"test": [image names]}}; fix or delete the file')
+    unknown = sorted(set(test) - set(names))
+    if unknown:
+        raise DatasetError(f"{path}: names images that are not in sparse/0: {', '.join(unknown[:5])}; fix the names")
+    return set(test)
+
+
 def read(folder: Path) -> CapturedScene:
     """Every photo of an HDR-GS scene, with the COLMAP points for initialisation."""
     model = _read_model(folder)
@@ -173,6 +216,7 @@ def read(folder: Path) -> CapturedScene:
         json_name(image.name, f"{folder / MODEL_FOLDER}: image name")
     if not entries:
         raise DatasetError(f"{folder / MODEL_FOLDER}: the COLMAP model has no images; re-run COLMAP")
+    test_names = _test_names(folder, [image.name for _, image in entries])
     views, sizes = [], {}
     for view_id, (image_id, image) in enumerate(entries):
         shots = _view_shots(images, image.name, image_id, exposures)
@@ -180,7 +224,8 @@ def read(folder: Path) -> CapturedScene:
         camera = _camera(model.cameras[image.camera_id], _cam_from_world(image), folder, image.name)
         token = Path(image.name).stem.split("_")[0]
         exr = folder / "exr" / f"{token}.exr"
-        views.append(CapturedView(view_id=view_id, camera=camera, split="train" if view_id % 2 == 0 else "test",
+        test = view_id % 2 == 1 if test_names is None else image.name in test_names
+        views.append(CapturedView(view_id=view_id, camera=camera, split="test" if test else "train",
                                   shots=shots, name=token,
                                   hdr=ImageFile(exr, read_exr) if exr.is_file() else None))
     width, height = check_one_size(sizes, images)
@@ -194,7 +239,9 @@ def read(folder: Path) -> CapturedScene:
         bounds_from_cameras([v.camera for v in views])
     return CapturedScene(name=folder.name, views=views, bounds_min=bounds[0], bounds_max=bounds[1],
                          points=points, point_colors=colours,
-                         metadata={"source": str(folder), "layout": "hdr-gs"})
+                         metadata={"source": str(folder), "layout": "hdr-gs", "unknown_exposures": exposures.unknown,
+                                   "camera_response": _response(folder),
+                                   "partial_hdr_expected": (folder / REPORT_FILE).is_file()})
 
 
 def _write_model(scene: CapturedScene, model_folder: Path) -> None:

@@ -1,0 +1,347 @@
+"""Bracket sets: photos of one viewpoint at several exposures, found and merged into linear HDR.
+
+Finding them. Photos are taken in file order, and two neighbours show one viewpoint when
+- the camera says so: both are marked as an automatic exposure bracket (EXIF ExposureMode) and
+  the second was taken within `max_gap` seconds of the end of the first (a very dark or very
+  bright bracket member often has too few features for structure from motion to place it, or
+  places it a little off); or
+- structure from motion put them at (almost) the same pose and, when both carry a capture time,
+  within the gap; or
+- one of them has no trustworthy pose and it was taken within the gap (bracket members too dark
+  or too bright for structure from motion to place well, from a camera that does not mark its
+  brackets).
+A run of one viewpoint is then cut wherever an exposure repeats, so two brackets shot at one
+place stay two sets. Before merging, `aligned_members` checks the pixels: a member whose
+linearised pixels do not correlate with its neighbour's shows something else and is left out.
+
+Merging them is colour-hdri's (colour-science): Debevec & Malik (1997) recover the camera
+response from the sets' intensity histograms (Grossberg & Nayar 2003 sampling, so small shifts
+between the photos do not matter), and the merge is the weighted average of linearised pixels
+divided by their exposures, with weights that vanish at black and at clipping.
+"""
+
+import math
+import warnings
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from mono_hdr_plugin.data.errors import DatasetError
+
+RESPONSE_LEVELS = 256
+"""The recovered response maps each of 256 code values (8-bit photos) to relative linear exposure."""
+SAME_EXPOSURE = 0.03
+"""Exposures within 3 % (a tenth of a third-stop step) are the same setting."""
+WELL_EXPOSED = (0.2, 0.9)
+"""Code values of the brighter photo trusted to compare two exposures: the darker photo is then
+above its noise floor, and the brighter one below clipping."""
+MIN_SHARED_PIXELS = 20
+ALIGNED_CORRELATION = 0.65
+"""Neighbours in a bracket whose log linear pixels correlate less than this do not show one view.
+Measured on the studio's demo captures (3 stops apart): 0.70-0.99 for true neighbours (the low end
+where the darker photo is mostly noise), 0.36-0.58 for photos of the next viewpoints."""
+RESPONSE_PIXELS = 200_000
+"""Photos are subsampled to about this many pixels for the response recovery (it uses histograms)."""
+RESPONSE_SAMPLES = 250
+"""Histogram quantiles per photo that constrain the response (colour-hdri's default 1000 makes its
+dense least-squares solve 16 times slower for the same curve)."""
+CONSTRAINED = (0.08, 0.9)
+"""Code values between which Debevec's recovered response is trusted (see continue_ends)."""
+EDGE_WINDOW = 30
+RESPONSE_SMOOTHNESS = 100.0
+"""Debevec's lambda. colour-hdri's 30 lets noisy JPEG histograms bend the dark end by 0.7 in log
+exposure on the studio captures; 100 keeps it within 0.25 (the middle within 0.03 either way)."""
+MERGE_ROWS = 256
+"""Merge this many image rows at a time: memory stays bounded for large photos."""
+
+
+@dataclass
+class BracketCandidate:
+    """What bracket detection knows about one photo."""
+
+    name: str
+    exposure: float | None
+    """Relative exposure (seconds at the reference ISO and aperture), None when unknown."""
+    timestamp: float | None = None
+    auto_bracket: bool = False
+    center: np.ndarray | None = None
+    """[3] camera centre from structure from motion; None when the photo was not placed, or placed
+    from so few points that its pose is not to be trusted (a very dark or bright bracket member)."""
+    rotation: np.ndarray | None = None
+    """[3, 3] camera-to-world rotation from structure from motion."""
+
+
+@dataclass(frozen=True)
+class BracketTolerances:
+    """How close two photos must be to count as one viewpoint."""
+
+    max_gap: float = 2.0
+    """Seconds from the end of one photo to the start of the next."""
+    position: float = 0.03
+    """Distance between camera centres, as a fraction of the scene scale (structure from motion
+    places the members of a tripod bracket up to ~2 % apart, the darkest and brightest worst)."""
+    angle_deg: float = 3.0
+    """Angle between the camera orientations."""
+
+
+def same_exposure(a: float, b: float) -> bool:
+    return abs(math.log(a / b)) < SAME_EXPOSURE
+
+
+def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    cosine = (np.trace(a.T @ b) - 1.0) / 2.0
+    return math.degrees(math.acos(float(np.clip(cosine, -1.0, 1.0))))
+
+
+def _linked(a: BracketCandidate, b: BracketCandidate, scale: float, tolerances: BracketTolerances) -> bool:
+    """Whether photo b, taken after a, shows the same viewpoint."""
+    timed = a.timestamp is not None and b.timestamp is not None
+    if timed and abs(b.timestamp - a.timestamp) > tolerances.max_gap + (a.exposure or 0.0):
+        return False
+    if timed and (a.auto_bracket and b.auto_bracket or a.center is None or b.center is None):
+        return True
+    return (a.center is not None and b.center is not None
+            and float(np.linalg.norm(a.center - b.center)) <= tolerances.position * scale
+            and _rotation_angle_deg(a.rotation, b.rotation) <= tolerances.angle_deg)
+
+
+def _check_not_all_equal(run: list[int], photos: list[BracketCandidate]) -> None:
+    """A camera bracket whose exposures are all equal cannot be merged: the bracket varied something else."""
+    members = [photos[i] for i in run]
+    if (len(members) > 1 and all(p.auto_bracket for p in members) and all(p.exposure is not None for p in members)
+            and all(same_exposure(p.exposure, members[0].exposure) for p in members)):
+        raise DatasetError(f"{', '.join(p.name for p in members)}: the camera marked these photos as one exposure "
+                           f"bracket, but all have the exposure {members[0].exposure:.6g} s, so there is nothing "
+                           "to merge. The camera may have bracketed focus or white balance: check its bracketing "
+                           "mode, or pass --no-brackets to use them as single photos")
+
+
+def detect_brackets(photos: list[BracketCandidate], scale: float,
+                    tolerances: BracketTolerances = BracketTolerances()) -> list[list[int]]:
+    """Partition photo indices (in file order) into viewpoint sets; a set of 2+ photos is a bracket.
+
+    scale: the scene's size in structure-from-motion units (for the position tolerance).
+    """
+    runs: list[list[int]] = []
+    for index, photo in enumerate(photos):
+        if runs and _linked(photos[runs[-1][-1]], photo, scale, tolerances):
+            runs[-1].append(index)
+        else:
+            runs.append([index])
+    sets: list[list[int]] = []
+    for run in runs:
+        _check_not_all_equal(run, photos)
+        sets.append([run[0]])
+        for index in run[1:]:
+            exposure = photos[index].exposure
+            repeats = exposure is not None and any(photos[j].exposure is not None and
+                                                   same_exposure(exposure, photos[j].exposure) for j in sets[-1])
+            if repeats:
+                sets.append([index])
+            else:
+                sets[-1].append(index)
+    return sets
+
+
+# ---------------------------------------------------------------- response and merge
+
+
+def _stack(images: list[np.ndarray], exposures: list[float]):
+    """A colour-hdri ImageStack whose photometric exposure 1 / L is each photo's relative exposure.
+
+    colour-hdri computes L = N^2 / t * k / S (k = 12.5); with N = 1 and S = k, 1 / L = t.
+    """
+    from colour_hdri import Image, ImageStack, Metadata
+
+    stack = ImageStack()
+    for image, exposure in sorted(zip(images, exposures), key=lambda pair: pair[1]):
+        stack.append(Image(data=np.asarray(image, np.float64),
+                           metadata=Metadata(f_number=1.0, exposure_time=exposure, iso=12.5)))
+    return stack
+
+
+def merge_weights(values: np.ndarray, response: np.ndarray | None) -> np.ndarray:
+    """Trust of each code value in [0, 1] of a bracket photo: its linear value, faded out at clipping.
+
+    Shot noise makes a pixel's variance grow with its linear value x, so the inverse-variance
+    weight of its estimate x / t is proportional to t, that is to x itself: of two photos the
+    longer exposure is trusted more, up to where it clips. The fade is colour-hdri's anchored
+    double sigmoid, from 0.8 to 0.975. Neither factor depends on the image's own range (the
+    Debevec hat in colour-hdri is divided by the image's largest weight), so every row block of
+    a merge is weighted alike.
+    """
+    from colour_hdri import double_sigmoid_anchored_function
+
+    fade = double_sigmoid_anchored_function(values, domain_l_in=-2.0, domain_l_out=-1.0)
+    return linearise(values, response) * fade
+
+
+def check_exposures_differ(exposures: list[float], names: list[str]) -> None:
+    if len(exposures) < 2 or all(same_exposure(e, exposures[0]) for e in exposures):
+        raise DatasetError(f"{', '.join(names)}: a bracket needs photos at two or more different exposures, these "
+                           f"have {', '.join(f'{e:.6g}' for e in exposures)} s; remove the set or fix the exposures")
+
+
+def response_sample(image: np.ndarray) -> np.ndarray:
+    """Every k-th pixel of each k-th row, about RESPONSE_PIXELS in all: enough for the response's histograms."""
+    step = max(1, int(math.sqrt(image.shape[0] * image.shape[1] / RESPONSE_PIXELS)))
+    return image[::step, ::step]
+
+
+def recover_response(brackets: list[tuple[list[np.ndarray], list[float]]]) -> np.ndarray:
+    """Camera response [256, 3]: code value k / 255 -> relative linear exposure, 1 at white.
+
+    Debevec & Malik (1997) on each bracket (photos in [0, 1], subsampled with response_sample, and
+    their relative exposures); one camera has
+    one response, so the sets' curves are averaged in log space. Made strictly increasing, since
+    a response with a flat or falling step cannot be inverted.
+    """
+    from colour_hdri import camera_response_functions_Debevec1997
+
+    curves = []
+    for images, exposures in brackets:
+        stack = _stack(images, exposures)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # colour's notes on zero pixels: the weights exclude them
+            curve = camera_response_functions_Debevec1997(
+                stack, sampling_function_kwargs={"samples": RESPONSE_SAMPLES}, l_s=RESPONSE_SMOOTHNESS,
+                n=RESPONSE_LEVELS)
+        curves.append(np.log(np.clip(curve, 1e-6, None)))
+    response = continue_ends(np.exp(np.mean(curves, axis=0)))
+    response = np.maximum.accumulate(np.clip(response, 1e-9, None), axis=0)
+    response += np.arange(RESPONSE_LEVELS)[:, None] * 1e-9  # strictly increasing
+    return (response / response[-1]).astype(np.float64)
+
+
+def continue_ends(response: np.ndarray) -> np.ndarray:
+    """The response [256, 3] with its ends replaced by power laws fitted next to them.
+
+    Debevec's weights vanish at black and white, so few samples and little smoothing hold the
+    curve there: on noise-free gamma-2.2 brackets its top 10 codes bend up by 0.38 in log
+    exposure and its bottom 10 by 0.29, which shifts every merge that contains a clipped or
+    black pixel. Below code CONSTRAINED[0] and above CONSTRAINED[1] the curve follows the
+    log-log line fitted over the EDGE_WINDOW codes inside each limit.
+    """
+    codes = np.arange(RESPONSE_LEVELS, dtype=np.float64)
+    low, high = (int(round(limit * (RESPONSE_LEVELS - 1))) for limit in CONSTRAINED)
+    log_codes, log_response = np.log(np.maximum(codes, 0.5)), np.log(np.clip(response, 1e-12, None))
+    result = log_response.copy()
+    for inside, outside in ((slice(low, low + EDGE_WINDOW), slice(0, low)),
+                            (slice(high - EDGE_WINDOW, high), slice(high, RESPONSE_LEVELS))):
+        for channel in range(response.shape[1]):
+            slope, intercept = np.polyfit(log_codes[inside], log_response[inside, channel], 1)
+            result[outside, channel] = slope * log_codes[outside] + intercept
+    return np.exp(result)
+
+
+def linearise(image: np.ndarray, response: np.ndarray | None) -> np.ndarray:
+    """Code values [..., 3] in [0, 1] -> relative linear exposure through the response (None: already linear)."""
+    if response is None:
+        return np.asarray(image, np.float64)
+    levels = np.linspace(0.0, 1.0, len(response))
+    return np.stack([np.interp(image[..., c], levels, response[:, c]) for c in range(3)], -1)
+
+
+def brightness_order(images: list[np.ndarray]) -> list[int]:
+    """Indices of the photos from the darkest to the brightest (mean pixel value)."""
+    return sorted(range(len(images)), key=lambda i: float(np.mean(images[i])))
+
+
+def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | None) -> bool:
+    """Whether two photos of a bracket show the same view (the first the shorter exposure).
+
+    Over the pixels well exposed in the brighter photo: the darker one must not be clipped there
+    (a shorter exposure cannot be brighter), and the logs of the linearised values must correlate
+    (logs, so that a few bright pixels do not decide it). Too few such pixels, or no variation in
+    them, is no evidence either way: True.
+    """
+    # Whole pixels: a channel beside a clipped one is unreliable (demosaicing, highlight recovery).
+    well_exposed = ((brighter > WELL_EXPOSED[0]) & (brighter < WELL_EXPOSED[1])).all(-1)
+    mask = np.broadcast_to(well_exposed[..., None], brighter.shape)
+    if well_exposed.sum() < MIN_SHARED_PIXELS:
+        return True
+    if np.mean(darker[mask] >= WELL_EXPOSED[1]) > 0.05:
+        return False
+    a = np.log(np.clip(linearise(darker, response)[mask], 1e-6, None))
+    b = np.log(np.clip(linearise(brighter, response)[mask], 1e-6, None))
+    if a.std() == 0 or b.std() == 0:
+        return True
+    return bool(np.corrcoef(a, b)[0, 1] >= ALIGNED_CORRELATION)
+
+
+def aligned_members(images: list[np.ndarray], order: list[int], start: int, response: np.ndarray | None) -> list[int]:
+    """The photos (indices into images) that line up with images[start], in `order`.
+
+    order: indices from darkest to brightest. Walking out from `start` both ways, each next photo
+    must line up with the last accepted one (`lines_up`); the walk stops at the first that does not.
+    """
+    position = order.index(start)
+    kept = [start]
+    for side, towards_dark in ((order[:position][::-1], True), (order[position + 1:], False)):
+        last = start
+        for index in side:
+            darker, brighter = (index, last) if towards_dark else (last, index)
+            if not lines_up(images[darker], images[brighter], response):
+                break
+            kept.append(index)
+            last = index
+    return sorted(kept, key=order.index)
+
+
+def estimate_relative_exposures(images: list[np.ndarray], response: np.ndarray | None,
+                                names: list[str]) -> list[float]:
+    """Exposure of each photo relative to the darkest, for brackets whose exposure times are unknown.
+
+    Photos are ordered by mean brightness. Each neighbour pair's ratio is sum(brighter) /
+    sum(darker) of linearised pixels chosen on the brighter photo alone (well exposed there):
+    choosing on the darker, noisier photo would favour pixels whose noise happened to be
+    positive and bias the ratio low. Errors name the pair when too few pixels qualify.
+    """
+    order = brightness_order(images)
+    relative = {order[0]: 1.0}
+    for darker, brighter in zip(order, order[1:]):
+        mask = (images[brighter] > WELL_EXPOSED[0]) & (images[brighter] < WELL_EXPOSED[1])
+        a, b = linearise(images[darker], response)[mask], linearise(images[brighter], response)[mask]
+        if len(a) < MIN_SHARED_PIXELS:
+            raise DatasetError(f"{names[darker]}, {names[brighter]}: too few pixels are well exposed in "
+                               f"{names[brighter]} to tell the two exposures apart; give their exposure times "
+                               "with --exposure-csv")
+        ratio = float(b.sum() / max(a.sum(), 1e-12))
+        relative[brighter] = relative[darker] * ratio
+    return [relative[i] for i in range(len(images))]
+
+
+def merge_bracket(images: list[np.ndarray], exposures: list[float], response: np.ndarray | None,
+                  names: list[str]) -> np.ndarray:
+    """Linear HDR float32 [H, W, 3], in units of linear exposure per unit of relative exposure.
+
+    images: photos of one viewpoint, [H, W, 3] in [0, 1] (code values, or linear when response is
+    None); exposures: their relative exposures. colour-hdri's weighted merge, row block by block.
+    """
+    check_exposures_differ(exposures, names)
+    sizes = {image.shape for image in images}
+    if len(sizes) > 1:
+        raise DatasetError(f"{', '.join(names)}: the photos of this bracket differ in size ({sorted(sizes)})")
+    from colour_hdri import image_stack_to_HDRI
+
+    merge = partial(image_stack_to_HDRI, weighting_function=partial(merge_weights, response=response),
+                    camera_response_functions=None if response is None else np.asarray(response))
+    rows = []
+    for top in range(0, images[0].shape[0], MERGE_ROWS):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # colour's notes on zero pixels: they are clipped to epsilon
+            rows.append(merge(_stack([image[top:top + MERGE_ROWS] for image in images], exposures)))
+    hdr = np.concatenate(rows).astype(np.float32)
+    if not np.isfinite(hdr).all():
+        raise DatasetError(f"{', '.join(names)}: the merge produced NaN or Inf; check the photos are not empty")
+    return hdr
+
+
+def dynamic_range_stops(hdr: np.ndarray, dark_percentile: float = 1.0) -> float:
+    """log2 of the brightest luminance over a low percentile of the lit pixels' (noise-robust)."""
+    luminance = hdr @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lit = luminance[luminance > 0]
+    if lit.size == 0:
+        return 0.0
+    return float(np.log2(luminance.max() / max(np.percentile(lit, dark_percentile), 1e-30)))
