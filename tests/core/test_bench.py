@@ -81,7 +81,11 @@ class TestPaperTables:
     def test_every_method_gets_the_same_number_of_trials_off_the_reported_scenes(self):
         trials = tuning_trials(BenchPaperConfig(tune_scene="demo"))
         assert set(trials) == {("NeRF", "hdr-nerf"), ("NeRF", "mono"), ("3DGS", "hdr-gs"), ("3DGS", "mono")}
-        assert len({len(specs) for specs in trials.values()}) == 1
+        for row in ("NeRF", "3DGS"):
+            assert len({len(specs) for (r, _), specs in trials.items() if r == row}) == 1, row
+        gs_paths = {path for spec in trials[("3DGS", "mono")] for path, _ in spec.overrides}
+        assert {"backbone.lr_sh_dc", "backbone.lr_means", "hdr.converter_lr"} <= gs_paths
+        assert len(trials[("3DGS", "hdr-gs")]) == 8, "2 x 2 backbone rates times 2 converter rates"
         assert all(spec.scene == "demo" for specs in trials.values() for spec in specs)
 
     def test_best_recipe_is_the_highest_hdr_psnr(self, tmp_path):
