@@ -26,7 +26,9 @@ class LdrFeatures:
         baseline methods read them as log radiance, as HDR-NeRF and HDR-GS do.
     composite: values [..., P, C] -> image [*camera.output_shape, C], with the backbone's
         weights (alpha blending, volume-rendering weights); any C, one pass.
-    extras: backbone outputs the wrapper passes through (depth, alpha, 2D means, ...).
+    extras: backbone outputs the wrapper passes through: "depth" and "alpha" [*output_shape]
+        where they come with the colours (NeRF), "render_depth" (a function returning depth)
+        where depth costs an extra pass (3DGS), 2D means, ...
     auxiliary: further renders supervised with the LDR loss only (NeRF's coarse network).
     """
 
@@ -55,12 +57,14 @@ class SceneInfo:
     def extent(self) -> float:
         """Radius of the camera rig, as 3DGS uses for its densification thresholds.
 
-        A single camera (or cameras at one spot) has no rig: half the scene diagonal stands in.
+        No camera, a single camera or cameras at one spot have no rig: half the scene diagonal
+        stands in.
         """
-        centers = torch.stack([c.center.float() for c in self.train_cameras])
-        rig = float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
-        if rig > 1e-6:
-            return rig
+        if self.train_cameras:
+            centers = torch.stack([c.center.float() for c in self.train_cameras])
+            rig = float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
+            if rig > 1e-6:
+                return rig
         return max(0.5 * float((self.bounds_max - self.bounds_min).float().norm()), 1e-3)
 
 
@@ -144,3 +148,8 @@ class Backbone(torch.nn.Module):
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """Per-group learning rate at `step`; override for schedules (3DGS position decay)."""
         return base_lr
+
+    def regularisation(self) -> dict[str, Tensor]:
+        """Named loss terms on the backbone's own parameters, added to the method's losses each
+        training step (3DGS-MCMC: opacity and scale regularisers)."""
+        return {}

@@ -52,11 +52,11 @@ def _coerce(annotation: Any, value: Any) -> Any:
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
         options = [option for option in typing.get_args(annotation) if option is not type(None)]
-        # A union of config dataclasses (NeRF's field): the one whose fields the saved keys name.
-        for option in options:
-            if dataclasses.is_dataclass(option) and isinstance(value, dict) and set(value) == {
-                    field.name for field in dataclasses.fields(option)}:
-                return config_from_dict(option, value)
+        if isinstance(value, dict):  # a union of config dataclasses: the one whose fields the values name
+            for option in options:
+                config = typing.get_args(option)[0] if typing.get_origin(option) is typing.Annotated else option
+                if dataclasses.is_dataclass(config) and set(value) == {f.name for f in dataclasses.fields(config)}:
+                    return config_from_dict(config, value)
         return _coerce(options[0], value)
     if origin is typing.Annotated:
         return _coerce(typing.get_args(annotation)[0], value)

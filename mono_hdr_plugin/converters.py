@@ -3,6 +3,12 @@
 L2H-CC mirrors the inverted imaging equation I_h = X * S(I_l) + Y, one small network per
 colour channel; H2L-CC mirrors I_l = D(I_h) + B(I_h) and closes the loop. The plain MLPs
 have the same width and input/output ranges but none of that structure (paper, Table 4).
+
+The per-channel networks (L2H-CC, its plain twin, the baselines' CRF) run once per primitive,
+so they dominate a step when evaluated as matrix products. Each maps one number to a few
+through Linear -> ReLU -> Linear, which is a piecewise-linear function with one kink per
+hidden unit: `per_channel_relu_mlp` evaluates it exactly that way (a table of slopes and
+intercepts between the sorted kinks, one lookup per input), with gradients for every weight.
 """
 
 import math
@@ -29,6 +35,45 @@ class PerChannelLinear(nn.Module):
         return torch.baddbmm(self.bias, x, self.weight)
 
 
+def per_channel_relu_mlp(x: Tensor, first: PerChannelLinear, second: PerChannelLinear) -> Tensor:
+    """second(relu(first(x))) for one scalar per channel: x [C, N] -> [C, N, K].
+
+    Between consecutive kinks t_j = -b_j / w_j of the hidden units the active set is fixed, so
+    the output is slope * x + intercept there. Positive-slope units are active above their kink,
+    negative ones below it; prefix sums over the sorted kinks give every interval's slope and
+    intercept (computed in float64), and each input looks its interval up. Equal to the matrix
+    form up to rounding, at O(N + hidden) cost instead of O(N * hidden).
+    """
+    w1, b1 = first.weight[:, 0, :].double(), first.bias[:, 0, :].double()  # [C, H]
+    w2, b2 = second.weight.double(), second.bias.double()  # [C, H, K], [C, 1, K]
+    moving = w1 != 0
+    # a unit with w = 0 never switches: "rising" from -inf when on (b > 0), from +inf when off
+    kinks = torch.where(moving, -b1 / torch.where(moving, w1, 1.0), torch.where(b1 > 0, -torch.inf, torch.inf))
+    order = torch.argsort(kinks, dim=1)
+    sorted_kinks = kinks.gather(1, order)
+
+    def by_kink(values: Tensor) -> Tensor:  # [C, H] -> [C, H] in kink order
+        return values.gather(1, order)
+
+    rising, falling = by_kink((w1 >= 0).double())[..., None], by_kink((w1 < 0).double())[..., None]
+    slopes = by_kink(w1)[..., None] * w2.gather(1, order[..., None].expand_as(w2))  # [C, H, K]
+    offsets = by_kink(b1)[..., None] * w2.gather(1, order[..., None].expand_as(w2))
+    zero = slopes.new_zeros(slopes.shape[0], 1, slopes.shape[2])
+
+    def table(contribution: Tensor) -> Tensor:
+        """Interval k (k kinks below x): rising units before k plus falling units from k on."""
+        below = torch.cat([zero, torch.cumsum(rising * contribution, 1)], 1)
+        above_total = (falling * contribution).sum(1, keepdim=True)
+        falling_below = torch.cat([zero, torch.cumsum(falling * contribution, 1)], 1)
+        return below + above_total - falling_below  # [C, H + 1, K]
+
+    slope_table = table(slopes).to(x.dtype)
+    intercept_table = (table(offsets) + b2).to(x.dtype)
+    interval = torch.searchsorted(sorted_kinks.to(x.dtype).contiguous(), x.detach().contiguous())
+    index = interval[..., None].expand(-1, -1, slope_table.shape[2])
+    return slope_table.gather(1, index) * x[..., None] + intercept_table.gather(1, index)
+
+
 def channels_first(colors: Tensor) -> Tensor:
     """[..., 3] -> [3, N, 1], the layout PerChannelLinear works in."""
     return colors.reshape(-1, colors.shape[-1]).T.unsqueeze(-1)
@@ -53,9 +98,9 @@ class L2HColorConverter(nn.Module):
         self.heads = PerChannelLinear(hidden, 3)
 
     def forward(self, ldr: Tensor) -> Tensor:
-        x = channels_first(ldr)
-        gain, saturation, noise = self.heads(F.relu(self.latent(x))).unbind(-1)
-        hdr = F.softplus(x.squeeze(-1) + F.relu(gain) * F.relu(saturation) + noise)
+        x = channels_first(ldr).squeeze(-1)
+        gain, saturation, noise = per_channel_relu_mlp(x, self.latent, self.heads).unbind(-1)
+        hdr = F.softplus(x + F.relu(gain) * F.relu(saturation) + noise)
         return channels_last(hdr, ldr.shape)
 
 
@@ -73,7 +118,11 @@ class H2LColorConverter(nn.Module):
 
     def forward(self, hdr: Tensor) -> Tensor:
         latent = F.relu(self.latent(hdr))
-        return torch.sigmoid(F.relu(self.response(latent)) + torch.tanh(self.bias(latent)))
+        # both heads in one product: half the passes over the [pixels, hidden] latent
+        heads = F.linear(latent, torch.cat([self.response.weight, self.bias.weight]),
+                         torch.cat([self.response.bias, self.bias.bias]))
+        response, bias = heads.split(3, dim=-1)
+        return torch.sigmoid(F.relu(response) + torch.tanh(bias))
 
 
 class PlainL2H(nn.Module):
@@ -85,7 +134,7 @@ class PlainL2H(nn.Module):
         self.out = PerChannelLinear(hidden, 1)
 
     def forward(self, ldr: Tensor) -> Tensor:
-        hdr = F.softplus(self.out(F.relu(self.hidden(channels_first(ldr)))))
+        hdr = F.softplus(per_channel_relu_mlp(channels_first(ldr).squeeze(-1), self.hidden, self.out))
         return channels_last(hdr.squeeze(-1), ldr.shape)
 
 
@@ -112,5 +161,5 @@ class PerChannelCRF(nn.Module):
         self.out = PerChannelLinear(hidden, 1)
 
     def forward(self, log_exposure: Tensor) -> Tensor:
-        ldr = torch.sigmoid(self.out(F.relu(self.hidden(channels_first(log_exposure)))))
+        ldr = torch.sigmoid(per_channel_relu_mlp(channels_first(log_exposure).squeeze(-1), self.hidden, self.out))
         return channels_last(ldr.squeeze(-1), log_exposure.shape)

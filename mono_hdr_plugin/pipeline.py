@@ -126,7 +126,8 @@ class Pipeline(nn.Module):
         return features, self._lift(features, exposure, view, training=True)
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, torch.Tensor]:
-        return self.method.losses(output, targets, step)
+        """The method's loss terms and the backbone's regularisers; the training loss is their sum."""
+        return {**self.method.losses(output, targets, step), **self.backbone.regularisation()}
 
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
         self.backbone.after_step(step, features, optimizer)
@@ -139,12 +140,13 @@ class Pipeline(nn.Module):
         return [camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(self.backbone.render_chunk)]
 
     @torch.no_grad()
-    def render(self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None) -> Frame:
+    def render(self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None,
+               with_depth: bool = False) -> Frame:
         """A whole image at `exposure` seconds, in pieces of `backbone.render_chunk` rays.
 
         `cancelled` is asked between pieces; a True answer raises RenderCancelled (the viewer's
         camera moved on). Depth and opacity come with the colours where the backbone composites
-        them (3DGS leaves them in its extras), so reading them costs no extra pass.
+        them (NeRF); where depth costs an extra pass (3DGS's "render_depth"), only `with_depth`.
         """
         ldr, hdr, depth, alpha = [], [], [], []
         for part in self.camera_chunks(camera):
@@ -154,8 +156,10 @@ class Pipeline(nn.Module):
             output = self._lift(features, exposure, None, training=False)
             ldr.append(output.ldr.reshape(-1, 3))
             hdr.append(output.hdr.reshape(-1, 3))
-            for name, pieces in (("depth", depth), ("alpha", alpha)):
-                value = features.extras.get(name)
+            part_depth = features.extras.get("depth")
+            if with_depth and "render_depth" in features.extras:
+                part_depth = features.extras["render_depth"]()
+            for value, pieces in ((part_depth, depth), (features.extras.get("alpha"), alpha)):
                 pieces.append(None if value is None else value.reshape(-1))
         shape = (camera.height, camera.width)
 

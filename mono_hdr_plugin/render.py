@@ -138,7 +138,8 @@ def display_frame(model: LoadedModel, camera: Camera, output: str, exposure: flo
     frame = cached
     if frame is None or (needs_render_at(output, model.exposure) and frame.exposure != exposure):
         frame = model.pipeline.render(
-            camera, exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure)
+            camera, exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure,
+            with_depth=output == "depth")
     return frame, to_uint8(to_display(frame, output, exposure, model.exposure))
 
 

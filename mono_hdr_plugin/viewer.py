@@ -191,8 +191,11 @@ class ViewerRenderer:
             raise ValueError(f"unknown output {output!r}; choose one of {', '.join(VIEWER_OUTPUTS)}")
         render_exposure = exposure if needs_render_at(output, model) else model.reference_exposure
         frame = cached
-        if frame is None or frame.exposure != render_exposure or frame.hdr.shape[0] != height:
-            frame = snapshot.pipeline.render(self.camera(viewer_camera, height), render_exposure, cancelled)
+        wants_depth = output == "depth"
+        if (frame is None or frame.exposure != render_exposure or frame.hdr.shape[0] != height
+                or (wants_depth and frame.depth is None)):
+            frame = snapshot.pipeline.render(self.camera(viewer_camera, height), render_exposure, cancelled,
+                                             with_depth=wants_depth)
         note = "this backbone renders no depth" if output == "depth" and frame.depth is None else ""
         return ViewerImage(to_uint8(to_display(frame, output, exposure, model)), frame, note)
 

@@ -38,10 +38,27 @@ def studio_cache(tmp_path_factory):
         yield folder
 
 
+def tiny_variant(scene):
+    """A built-in scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
+    return replace(scene, resolution=(24, 24), spp=4, rig=replace(scene.rig, views=10))
+
+
 @pytest.fixture(scope="session")
 def tiny_demo(studio_cache):
     """The demo scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
-    from mono_hdr_plugin.studio.scenes import SCENES
+    from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES
 
-    demo = SCENES["demo"]
-    return replace(demo, resolution=(24, 24), spp=4, rig=replace(demo.rig, views=10))
+    return tiny_variant(next(scene for scene in BUILTIN_SCENES if scene.name == "demo"))
+
+
+@pytest.fixture(autouse=True)
+def tiny_builtin_scenes(request, monkeypatch):
+    """Outside slow tests, `--scene NAME` finds tiny variants rendered into the session cache:
+    the real scenes take minutes to render. Slow tests see the real ones (and the user's cache)."""
+    if request.node.get_closest_marker("slow"):
+        return
+    from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES, SCENES
+
+    request.getfixturevalue("studio_cache")
+    for scene in BUILTIN_SCENES:
+        monkeypatch.setitem(SCENES, scene.name, tiny_variant(scene))

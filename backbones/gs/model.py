@@ -1,17 +1,18 @@
-"""The 3D Gaussian Splatting backbone: parameters, rendering, schedules, density control."""
+"""The 3D Gaussian Splatting backbone: parameters, rendering, schedules, densification."""
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
 import torch
+import tyro
 from torch import Tensor, nn
 
 from backbones.gs.ply import export_ply
-from backbones.gs.rasterizer import project_gaussians, rasterize
-from backbones.gs.sh import eval_sh, num_sh_bases, rgb_to_sh, view_directions
-from backbones.gs.strategy import DensityControl, DensityControlSchedule, DensityControlState
+from backbones.gs.rasterizer import check_backend, project_gaussians, rasterize
+from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
+from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
 from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
@@ -19,7 +20,8 @@ from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 @dataclass
 class GaussianConfig:
-    """Hyper-parameters of the 3DGS backbone (defaults: the official 3DGS recipe)."""
+    """Hyper-parameters of the 3DGS backbone. Field defaults are the official 3DGS recipe
+    (`--preset paper`); `--preset cpu`, the default, changes some for a minutes-long CPU run."""
 
     sh_degree: int = 3
     """Highest spherical-harmonics degree of the view-dependent colour (0 to 3)."""
@@ -29,6 +31,8 @@ class GaussianConfig:
     """Gaussians placed uniformly in the scene bounds when the scene gives no points."""
     init_opacity: float = 0.1
     """Opacity of every Gaussian at initialisation."""
+    init_scale: float = 1.0
+    """Initial scale: this times the mean distance to the 3 nearest initial points."""
     lr_means: float = 1.6e-4
     """Initial position learning rate, times the scene extent."""
     lr_means_final: float = 1.6e-6
@@ -43,58 +47,29 @@ class GaussianConfig:
     """Learning rate of the log scales."""
     lr_quats: float = 1e-3
     """Learning rate of the rotation quaternions."""
-    refine_start: int = 500
-    """First densification step of a 30k run (scaled to the run length)."""
-    refine_stop: int = 15_000
-    """Last densification step of a 30k run (scaled to the run length)."""
-    refine_every: int = 100
-    """Densify every this many steps of a 30k run (scaled to the run length)."""
-    min_refine_every: int = 10
-    """Lower bound on the scaled densification interval, so short runs still average gradients."""
-    reset_opacity_every: int = 3000
-    """Reset opacities every this many steps of a 30k run (scaled to the run length)."""
-    grad_threshold: float = 2e-4
-    """Densify Gaussians whose mean view-space gradient (NDC units) exceeds this."""
-    percent_dense: float = 0.01
-    """Gaussians larger than this fraction of the scene extent are split, smaller ones cloned."""
-    prune_opacity: float = 0.005
-    """Prune Gaussians less opaque than this."""
-    max_screen_size: float = 20.0
-    """After the first opacity reset, prune Gaussians wider than this many pixels."""
-    max_gaussians: int = 300_000
-    """Stop growing beyond this many Gaussians (a CPU memory and time budget)."""
+    strategy: tyro.conf.AvoidSubcommands[McmcStrategy | DefaultStrategy] = field(default_factory=DefaultStrategy)
+    """Densification: the preset chooses it (cpu: 3DGS-MCMC with a Gaussian budget, paper: the
+    official clone/split/prune); its settings are the --backbone.strategy.* flags."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
 
     flag_rules: ClassVar = {
         "sh_degree": between(0, 3), "sh_increase_every": at_least(1), "random_init_points": at_least(1),
-        "init_opacity": between(0, 1, low_open=True, high_open=True), "lr_means": POSITIVE, "lr_means_final": POSITIVE,
-        "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE, "lr_scales": POSITIVE,
-        "lr_quats": POSITIVE, "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
-        "min_refine_every": at_least(1), "reset_opacity_every": at_least(1), "grad_threshold": NON_NEGATIVE,
-        "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True), "max_screen_size": POSITIVE,
-        "max_gaussians": at_least(1)}
+        "init_opacity": between(0, 1, low_open=True, high_open=True), "init_scale": POSITIVE, "lr_means": POSITIVE,
+        "lr_means_final": POSITIVE, "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE,
+        "lr_scales": POSITIVE, "lr_quats": POSITIVE}
+    """The strategy's flags follow its own table (McmcStrategy, DefaultStrategy)."""
 
 
-class _RenderExtras(dict):
-    """extras of one render: alpha and depth appear when the image is composited; read
-    before that, they are rendered on their own (an extra pass)."""
+def cpu_preset() -> GaussianConfig:
+    """Minutes on a CPU: 3DGS-MCMC within a Gaussian budget, a faster SH ramp and colour rates
+    that let log-radiance colours (HDR-GS) move as far as LDR ones in a short run.
 
-    def __init__(self, render_geometry, **items):
-        super().__init__(**items)
-        self._render_geometry = render_geometry
-
-    def __missing__(self, key):
-        if key in ("alpha", "depth"):
-            self._render_geometry()
-            return dict.__getitem__(self, key)
-        raise KeyError(key)
-
-    def __contains__(self, key):
-        return key in ("alpha", "depth") or dict.__contains__(self, key)
-
-    def get(self, key, default=None):
-        return self[key] if key in self else default
+    Chosen by the sweep in benchmarks/gs_cpu_sweep.py on the built-in scenes (results in
+    benchmarks/results/gs_cpu_sweep/); the same values serve every method.
+    """
+    return GaussianConfig(init_opacity=0.5, init_scale=0.5, lr_sh_dc=0.01, lr_sh_rest=0.01 / 20,
+                          strategy=McmcStrategy())
 
 
 class GaussianBackbone(Backbone):
@@ -107,25 +82,30 @@ class GaussianBackbone(Backbone):
 
     def __init__(self, config: GaussianConfig, scene: SceneInfo):
         super().__init__(config, scene)
-        if config.backend not in ("kernel", "torch"):
-            raise ValueError(f"backend must be 'kernel' or 'torch', got {config.backend!r}")
+        check_backend(config.backend)
         num_sh_bases(config.sh_degree)  # validates the degree
-        self.scene_extent = scene.extent if scene.train_cameras else float(
-            (scene.bounds_max - scene.bounds_min).norm() / 2)
+        self.scene_extent = scene.extent
+        training_pixels = sum(camera.width * camera.height for camera in scene.train_cameras)
         means, colors = self._initial_points(config, scene)
+        self.budget = config.strategy.budget(training_pixels) if training_pixels else means.shape[0]
+        if means.shape[0] > self.budget:  # start within the budget: a random subset
+            keep = torch.randperm(means.shape[0])[:self.budget]
+            means, colors = means[keep], colors[keep]
         n = means.shape[0]
-        sh_dc = rgb_to_sh(colors)[:, None, :]
         self.means = nn.Parameter(means)
-        self.sh_dc = nn.Parameter(sh_dc)
+        self.sh_dc = nn.Parameter(rgb_to_sh(colors)[:, None, :])
         self.sh_rest = nn.Parameter(torch.zeros(n, num_sh_bases(config.sh_degree) - 1, 3))
-        self.log_scales = nn.Parameter(torch.log(_nearest_neighbour_distance(means))[:, None].repeat(1, 3))
+        scale = config.init_scale * _nearest_neighbour_distance(means)
+        self.log_scales = nn.Parameter(torch.log(scale)[:, None].repeat(1, 3))
         self.quats = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1))
         self.opacity_logits = nn.Parameter(torch.full((n,), math.log(config.init_opacity / (1 - config.init_opacity))))
         self.active_sh_degree = 0
-        self.density_control = self._density_control()
+        self.strategy_state = config.strategy.initial_state(n)
 
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
+        """The scene's points (COLMAP, studio surface samples) with their colours, else random
+        points in the scene bounds."""
         if scene.points is not None and len(scene.points) > 0:
             points = scene.points.detach().float().reshape(-1, 3).clone()  # training moves the means in place
             if scene.point_colors is None:
@@ -142,14 +122,6 @@ class GaussianBackbone(Backbone):
         means = low + torch.rand(config.random_init_points, 3) * (high - low)
         return means, torch.rand(config.random_init_points, 3)
 
-    def _density_control(self) -> DensityControl:
-        c = self.config
-        schedule = DensityControlSchedule.scaled(self.max_steps, c.refine_start, c.refine_stop, c.refine_every,
-                                                 c.reset_opacity_every, c.min_refine_every)
-        return DensityControl(schedule, self.scene_extent, grad_threshold=c.grad_threshold,
-                              percent_dense=c.percent_dense, prune_opacity=c.prune_opacity,
-                              max_screen_size=c.max_screen_size, max_gaussians=c.max_gaussians)
-
     @classmethod
     def benchmarks(cls) -> dict:
         """`mono-hdr bench raster`: the C++ kernel against its torch twin, 3 vs 6 channels."""
@@ -158,16 +130,15 @@ class GaussianBackbone(Backbone):
         return {"raster": (BenchRasterConfig, bench_raster_command)}
 
     @classmethod
-    def presets(cls) -> dict[str, GaussianConfig]:
-        """paper: the official 3DGS recipe (30k steps, scaled to the run length)."""
-        return {"paper": GaussianConfig()}
+    def tuning_space(cls) -> dict[str, tuple]:
+        """The recipe table's grid, around the cpu preset's base-colour and position rates."""
+        return {"lr_sh_dc": (0.005, 0.01), "lr_means": (1.6e-4, 4.8e-4)}
 
-    def set_run_length(self, max_steps: int) -> None:
-        super().set_run_length(max_steps)
-        statistics = self.density_control.state if hasattr(self, "density_control") else None
-        self.density_control = self._density_control()
-        if statistics is not None:  # a time-budget re-estimate must not forget the gathered gradients
-            self.density_control.state = statistics
+    @classmethod
+    def presets(cls) -> dict[str, GaussianConfig]:
+        """cpu (default): budgeted 3DGS-MCMC for 2-10 minute runs; paper: the official 3DGS recipe
+        (30k steps, clone/split/prune), both scaled to the run length."""
+        return {"cpu": cpu_preset(), "paper": GaussianConfig()}
 
     @property
     def num_gaussians(self) -> int:
@@ -178,14 +149,9 @@ class GaussianBackbone(Backbone):
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
-        return [
-            {"name": "means", "params": [self.means], "lr": c.lr_means * self.scene_extent},
-            {"name": "sh_dc", "params": [self.sh_dc], "lr": c.lr_sh_dc},
-            {"name": "sh_rest", "params": [self.sh_rest], "lr": c.lr_sh_rest},
-            {"name": "log_scales", "params": [self.log_scales], "lr": c.lr_scales},
-            {"name": "quats", "params": [self.quats], "lr": c.lr_quats},
-            {"name": "opacity_logits", "params": [self.opacity_logits], "lr": c.lr_opacities},
-        ]
+        rates = {"means": c.lr_means * self.scene_extent, "sh_dc": c.lr_sh_dc, "sh_rest": c.lr_sh_rest,
+                 "log_scales": c.lr_scales, "quats": c.lr_quats, "opacity_logits": c.lr_opacities}
+        return [{"name": name, "params": [getattr(self, name)], "lr": rates[name]} for name in GAUSSIAN_PARAMETERS]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """3DGS position schedule: log-linear from lr_means to lr_means_final over the run."""
@@ -195,53 +161,57 @@ class GaussianBackbone(Backbone):
         final = base_lr * self.config.lr_means_final / self.config.lr_means
         return math.exp((1 - progress) * math.log(base_lr) + progress * math.log(final))
 
-    def activated(self) -> dict[str, Tensor]:
-        """Render-ready parameters: means [N,3], quats [N,4], scales [N,3], opacities [N], sh [N,K,3]."""
-        # clamping the log-scale keeps exp finite, so culled Gaussians never see inf * 0 gradients
-        return {"means": self.means, "quats": self.quats, "scales": torch.exp(self.log_scales.clamp(-20, 20)),
-                "opacities": torch.sigmoid(self.opacity_logits), "sh": torch.cat([self.sh_dc, self.sh_rest], 1)}
+    def regularisation(self) -> dict[str, Tensor]:
+        """The strategy's loss terms on the Gaussians (3DGS-MCMC: opacity and scale)."""
+        return self.config.strategy.regularisation(self)
 
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
-        g = self.activated()
-        raw_colors = eval_sh(self.active_sh_degree, g["sh"], view_directions(g["means"], camera.center))
-        colors = (raw_colors + 0.5).clamp_min(0)
-        projected = project_gaussians(g["means"], g["quats"], g["scales"], g["opacities"], camera,
+        """Colours of the V Gaussians visible in `camera` ([V, 3]); `composite` takes [V, C].
+
+        extras: "projected" (the ProjectedGaussians: visible index, screen means whose gradient
+        densification reads, radii), "alpha" [H, W, 1] once `composite` has run, and
+        "render_depth", a function that rasterises expected depth [H, W, 1] (an extra pass,
+        only when called).
+        """
+        scales = torch.exp(self.log_scales.clamp(-20, 20))  # finite, so culled rows never see inf * 0
+        projected = project_gaussians(self.means, self.quats, scales, torch.sigmoid(self.opacity_logits), camera,
                                       backend=self.config.backend)
         if projected.means2d.requires_grad:
             projected.means2d.retain_grad()
-
-        def render_geometry():
-            composite(projected.means2d.new_zeros(self.num_gaussians, 0))
-
-        extras = _RenderExtras(render_geometry, means2d=projected.means2d, radii=projected.radii,
-                               visibility=projected.radii > 0, projected=projected,
-                               image_size=(camera.width, camera.height))
+        raw_colors = visible_colors(self.active_sh_degree, self.sh_dc, self.sh_rest, self.means, projected.index,
+                                    camera.center, backend=self.config.backend)
+        extras = {"projected": projected}
 
         def composite(values: Tensor) -> Tensor:
-            """values [N, C] -> image [H, W, C]; also leaves alpha and depth [H, W, 1] in extras."""
-            image, alpha = rasterize(projected, torch.cat([values, projected.depths[:, None]], 1))
-            extras["alpha"] = alpha
-            # expected depth of the visible surface, 0 where nothing was hit
-            extras["depth"] = image[..., -1:] / alpha.clamp_min(1e-6)
-            return image[..., :-1]
+            """values [V, C] of the visible Gaussians -> image [H, W, C]; leaves alpha in extras."""
+            image, extras["alpha"] = rasterize(projected, values)
+            return image
 
-        return LdrFeatures(colors=colors, raw_colors=raw_colors, composite=composite, extras=extras)
+        def render_depth() -> Tensor:
+            """Expected depth of the visible surface [H, W, 1], 0 where nothing was hit."""
+            depth, alpha = rasterize(projected, projected.depths[:, None])
+            return depth / alpha.clamp_min(1e-6)
+
+        extras["render_depth"] = render_depth
+        return LdrFeatures(colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite,
+                           extras=extras)
 
     @torch.no_grad()
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
-        """Raise the SH degree on schedule and run density control (keeps Adam state aligned)."""
-        interval = max(1, round(self.config.sh_increase_every * self.max_steps / 30_000))
-        self.active_sh_degree = min(self.config.sh_degree, (step + 1) // interval)
-        width, height = features.extras["image_size"]
-        self.density_control.step_post_backward(self, optimizer, step, features.extras["means2d"],
-                                                features.extras["radii"], width, height)
+        """Raise the SH degree on schedule (never lowered when the run length is re-estimated) and
+        run the densification strategy (keeps Adam state aligned)."""
+        interval = max(1, round(self.config.sh_increase_every * self.max_steps / REFERENCE_STEPS))
+        self.active_sh_degree = max(self.active_sh_degree, min(self.config.sh_degree, (step + 1) // interval))
+        self.config.strategy.step_post_backward(self, optimizer, self.strategy_state, step, self.max_steps,
+                                                features.extras.get("projected"), self.budget)
 
     def load_gaussians(self, tensors: dict[str, Tensor]) -> None:
         """Replace all Gaussians (e.g. from load_ply); rebuild the optimiser afterwards."""
-        for name in ("means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits"):
+        for name in GAUSSIAN_PARAMETERS:
             if name not in tensors:
                 raise ValueError(f"missing {name!r}: pass the dict load_ply returns")
             setattr(self, name, nn.Parameter(tensors[name].float().clone()))
+        self.strategy_state = self.config.strategy.initial_state(self.num_gaussians)
 
     def export_ply(self, path) -> Path:
         """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
@@ -249,19 +219,17 @@ class GaussianBackbone(Backbone):
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree
-        (a model loaded without it renders with degree 0) and the density statistics."""
-        state = self.density_control.state
-        return {"active_sh_degree": self.active_sh_degree, "grad2d_sum": state.grad2d_sum,
-                "visible_count": state.visible_count, "max_radii": state.max_radii}
+        (a model loaded without it renders with degree 0) and the strategy's statistics."""
+        return {"active_sh_degree": self.active_sh_degree,
+                "strategy_state": {name: value.clone() for name, value in self.strategy_state.items()}}
 
     def set_extra_state(self, state: dict) -> None:
         self.active_sh_degree = int(state["active_sh_degree"])
-        self.density_control.state = DensityControlState(
-            state["grad2d_sum"].clone(), state["visible_count"].clone(), state["max_radii"].clone())
+        self.strategy_state = {name: value.clone() for name, value in state["strategy_state"].items()}
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # densification changes N: take the checkpoint's shapes before loading values
-        for name in ("means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits"):
+        for name in GAUSSIAN_PARAMETERS:
             if prefix + name in state_dict:
                 setattr(self, name, nn.Parameter(torch.empty_like(state_dict[prefix + name])))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

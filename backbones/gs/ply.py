@@ -1,7 +1,5 @@
 """Standard 3DGS PLY files (the layout common splat viewers read), written atomically."""
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +8,7 @@ from plyfile import PlyData, PlyElement
 from torch import Tensor
 
 from backbones.gs.sh import num_sh_bases
+from mono_hdr_plugin.data.io import atomic_path
 
 
 def _attribute_names(rest_bases: int) -> list[str]:
@@ -37,15 +36,8 @@ def export_ply(backbone, path: str | Path) -> Path:
     for i, name in enumerate(names):
         vertices[name] = data[:, i]
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(handle)
-    try:
-        PlyData([PlyElement.describe(vertices, "vertex")]).write(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as temporary:
+        PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
     return path
 
 

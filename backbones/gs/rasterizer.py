@@ -3,10 +3,12 @@
 Two steps, so one projection serves several renders of different channels:
 
     projected = project_gaussians(means, quats, scales, opacities, camera)
-    image, alpha = rasterize(projected, values)        # values [N, C], any C
+    image, alpha = rasterize(projected, values)        # values [V, C]: the visible Gaussians
 
-`backend="kernel"` (default) runs the C++ extension (built on first use); `backend="torch"`
-runs the plain-torch twin in `reference.py`, which defines the same result.
+Projection culls: everything after it works on the V visible Gaussians only (projected.index
+says which of the N they are), so per-Gaussian work elsewhere (colours, converters) can skip
+the culled ones too. `backend="kernel"` (default) runs the C++ extension (built on first use);
+`backend="torch"` runs the plain-torch twin in `reference.py`, which defines the same result.
 """
 
 from dataclasses import dataclass
@@ -24,26 +26,33 @@ Backend = Literal["kernel", "torch"]
 
 @dataclass
 class ProjectedGaussians:
-    """Screen-space Gaussians of one camera, binned into 16 x 16 tiles.
+    """Screen-space Gaussians of one camera: the V visible ones of N, binned into 16 x 16 tiles.
 
-    means2d [N,2] pixel coordinates (pixel centres at integer + 0.5); its gradient is the
-    screen-space gradient densification reads. conics [N,3] (a, b, c) of the inverse 2D
-    covariance; depths [N] camera z; opacities [N]; radii [N] int32 (ceil of 3 sigma, 0 when
-    culled); boxes [N,4] int32 pixel ranges (x0, y0, x1, y1), end-exclusive;
-    tile_offsets [T+1] and tile_ids [M] int32: the depth-sorted Gaussians of each tile.
+    index [V] int64: which of the N Gaussians are visible (ascending). radii [N] int32: ceil of
+    3 sigma in pixels for every Gaussian, 0 when culled. For the visible ones: means2d [V,2]
+    pixel coordinates (pixel centres at integer + 0.5), whose gradient is the screen-space
+    gradient densification reads; conics [V,3] (a, b, c) of the inverse 2D covariance; depths
+    [V] camera z; opacities [V]; boxes [V,4] int32 pixel ranges (x0, y0, x1, y1), end-exclusive;
+    tile_offsets [T+1] and tile_ids [M] int32: the depth-sorted rows (into V) of each tile.
     """
 
+    index: Tensor
+    radii: Tensor
     means2d: Tensor
     conics: Tensor
     depths: Tensor
     opacities: Tensor
-    radii: Tensor
     boxes: Tensor
     tile_offsets: Tensor
     tile_ids: Tensor
     width: int
     height: int
     backend: Backend
+
+    @property
+    def count(self) -> int:
+        """N, the number of Gaussians projected (visible or not)."""
+        return self.radii.shape[0]
 
 
 def _camera_arguments(camera: Camera) -> tuple:
@@ -56,18 +65,18 @@ def _camera_arguments(camera: Camera) -> tuple:
 class _ProjectKernel(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, viewmat, intrinsics):
-        means2d, conics, depths, radii, boxes = load_extension().project_forward(
+        index, radii, means2d, conics, depths, boxes = load_extension().project_forward(
             means, quats, scales, opacities, viewmat, *intrinsics)
-        ctx.save_for_backward(means, quats, scales, viewmat, radii)
+        ctx.save_for_backward(means, quats, scales, viewmat, index)
         ctx.intrinsics = intrinsics
-        ctx.mark_non_differentiable(radii, boxes)
-        return means2d, conics, depths, radii, boxes
+        ctx.mark_non_differentiable(index, radii, boxes)
+        return index, radii, means2d, conics, depths, boxes
 
     @staticmethod
-    def backward(ctx, v_means2d, v_conics, v_depths, _v_radii, _v_boxes):
-        means, quats, scales, viewmat, radii = ctx.saved_tensors
+    def backward(ctx, _v_index, _v_radii, v_means2d, v_conics, v_depths, _v_boxes):
+        means, quats, scales, viewmat, index = ctx.saved_tensors
         v_means, v_quats, v_scales = load_extension().project_backward(
-            means, quats, scales, viewmat, radii, *ctx.intrinsics,
+            means, quats, scales, viewmat, index, *ctx.intrinsics,
             v_means2d.contiguous(), v_conics.contiguous(), v_depths.contiguous())
         return v_means, v_quats, v_scales, None, None, None
 
@@ -100,17 +109,23 @@ def _as_float32(name: str, tensor: Tensor, shape_tail: tuple[int, ...]) -> Tenso
     return tensor.float().contiguous()
 
 
+def check_backend(backend: str) -> None:
+    if backend not in ("kernel", "torch"):
+        raise ValueError(f"backend must be 'kernel' or 'torch', got {backend!r}")
+
+
 def project_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
                       camera: Camera, backend: Backend = "kernel") -> ProjectedGaussians:
-    """Project 3D Gaussians into `camera` (EWA, 0.3 px^2 dilation) and bin them into tiles.
+    """Project 3D Gaussians into `camera` (EWA, 0.3 px^2 dilation), cull, and bin the visible ones.
 
     means [N,3] world positions; quats [N,4] rotations (w, x, y, z), any norm, zero = identity;
     scales [N,3] standard deviations along the local axes (already activated, >= 0);
     opacities [N] in [0, 1] (already activated). Gaussians behind the near plane, with a
     degenerate or non-finite footprint, or whose alpha cannot reach 1/255 inside the image
-    are culled (radii 0, no gradient). Differentiable w.r.t. means, quats and scales through
-    means2d, conics and depths; opacities reach the gradient through `rasterize`.
+    are culled (radii 0, not in `index`, no gradient). Differentiable w.r.t. means, quats and
+    scales through means2d, conics and depths, and w.r.t. opacities through `rasterize`.
     """
+    check_backend(backend)
     n = means.shape[0]
     means = _as_float32("means", means, (3,))
     quats = _as_float32("quats", quats, (4,))
@@ -118,33 +133,32 @@ def project_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: T
     if opacities.shape != (n,) or quats.shape[0] != n or scales.shape[0] != n:
         raise ValueError(f"means, quats, scales, opacities must share N={n}; got "
                          f"{quats.shape[0]}, {scales.shape[0]}, {tuple(opacities.shape)}")
-    opacities = opacities.float().contiguous()
+    opacities = opacities.float()
     viewmat = camera.w2c.float().contiguous()
     intrinsics = _camera_arguments(camera)
     if backend == "kernel":
-        means2d, conics, depths, radii, boxes = _ProjectKernel.apply(
-            means, quats, scales, opacities.detach(), viewmat, intrinsics)
+        index, radii, means2d, conics, depths, boxes = _ProjectKernel.apply(
+            means, quats, scales, opacities.detach().contiguous(), viewmat, intrinsics)
         tile_offsets, tile_ids = load_extension().bin_tiles(boxes, depths.detach(), camera.width, camera.height)
-    elif backend == "torch":
-        means2d, conics, depths, radii, boxes = reference.project_gaussians_torch(
+    else:
+        index, radii, means2d, conics, depths, boxes = reference.project_gaussians_torch(
             means, quats, scales, opacities.detach(), viewmat, *intrinsics)
         tile_offsets, tile_ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-    else:
-        raise ValueError(f"backend must be 'kernel' or 'torch', got {backend!r}")
-    return ProjectedGaussians(means2d, conics, depths, opacities, radii, boxes, tile_offsets, tile_ids,
-                              camera.width, camera.height, backend)
+    return ProjectedGaussians(index, radii, means2d, conics, depths, opacities[index].contiguous(), boxes,
+                              tile_offsets, tile_ids, camera.width, camera.height, backend)
 
 
 def rasterize(projected: ProjectedGaussians, values: Tensor) -> tuple[Tensor, Tensor]:
-    """Composite per-Gaussian `values` [N, C] (any C) front to back over a black background.
+    """Composite per-Gaussian `values` [V, C] (any C; row i belongs to projected.index[i]) front
+    to back over a black background.
 
     Returns image [H, W, C] and alpha [H, W, 1] (1 - final transmittance). Differentiable
     w.r.t. values, projected.means2d, projected.conics and projected.opacities. To render
     depth, pass projected.depths[:, None] as (part of) the values.
     """
-    n = projected.means2d.shape[0]
-    if values.dim() != 2 or values.shape[0] != n:
-        raise ValueError(f"values must have shape [N={n}, C], got {tuple(values.shape)}")
+    visible = projected.index.shape[0]
+    if values.dim() != 2 or values.shape[0] != visible:
+        raise ValueError(f"values must have shape [V={visible}, C] (the visible Gaussians), got {tuple(values.shape)}")
     args = (projected.means2d, projected.conics, projected.opacities, values.float().contiguous(),
             projected.boxes, projected.tile_offsets, projected.tile_ids, projected.width, projected.height)
     if projected.backend == "kernel":
@@ -154,7 +168,10 @@ def rasterize(projected: ProjectedGaussians, values: Tensor) -> tuple[Tensor, Te
 
 def render_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, values: Tensor,
                      camera: Camera, backend: Backend = "kernel") -> tuple[Tensor, Tensor, ProjectedGaussians]:
-    """project_gaussians + rasterize: image [H,W,C], alpha [H,W,1] and the projection."""
+    """project_gaussians + rasterize of values [N, C] given for every Gaussian: image [H,W,C],
+    alpha [H,W,1] and the projection."""
+    if values.dim() != 2 or values.shape[0] != means.shape[0]:
+        raise ValueError(f"values must have shape [N={means.shape[0]}, C], got {tuple(values.shape)}")
     projected = project_gaussians(means, quats, scales, opacities, camera, backend)
-    image, alpha = rasterize(projected, values)
+    image, alpha = rasterize(projected, values[projected.index])
     return image, alpha, projected

@@ -60,15 +60,15 @@ def _project(means, quats, scales, viewmat, fx, fy, cx, cy, width, height):
 def project_gaussians_torch(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
                             viewmat: Tensor, fx: float, fy: float, cx: float, cy: float,
                             width: int, height: int, near: float) -> tuple[Tensor, ...]:
-    """Torch twin of the kernel's projection.
+    """Torch twin of the kernel's projection, culling and compaction.
 
     means [N,3], quats [N,4] (w,x,y,z), scales [N,3] (linear), opacities [N] in (0, 1),
-    viewmat [4,4] world-to-camera (OpenCV). Returns means2d [N,2], conics [N,3] (a, b, c of
-    the inverse 2D covariance), depths [N], radii [N] int32 (ceil of 3 sigma, 0 = culled),
-    boxes [N,4] int32 (x0, y0, x1, y1, end-exclusive pixel ranges). Culled Gaussians get
-    zeros and exactly zero gradients.
+    viewmat [4,4] world-to-camera (OpenCV). Returns index [V] int64 (the visible rows,
+    ascending), radii [N] int32 (ceil of 3 sigma, 0 = culled), and for the visible Gaussians
+    means2d [V,2], conics [V,3] (a, b, c of the inverse 2D covariance), depths [V] and boxes
+    [V,4] int32 (x0, y0, x1, y1, end-exclusive pixel ranges). Culled Gaussians get exactly zero
+    gradients.
     """
-    n = means.shape[0]
     with torch.no_grad():  # decide who is visible on detached values, then differentiate only those
         t, means2d, cov = _project(means, quats, scales, viewmat, fx, fy, cx, cy, width, height)
         a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
@@ -85,17 +85,14 @@ def project_gaussians_torch(means: Tensor, quats: Tensor, scales: Tensor, opacit
         y0 = torch.floor(means2d[:, 1] - extent).clamp(0, height)
         y1 = torch.ceil(means2d[:, 1] + extent).clamp(0, height)
         visible &= (reach2 > 0) & (x0 < x1) & (y0 < y1) & torch.isfinite(sigma)
-        boxes = torch.where(visible[:, None], torch.stack([x0, y0, x1, y1], -1), 0).to(torch.int32)
+        index = visible.nonzero().squeeze(1)
+        boxes = torch.stack([x0, y0, x1, y1], -1)[index].to(torch.int32)
         radii = torch.where(visible, torch.ceil(3.0 * sigma).clamp(max=1e9), 0).to(torch.int32)
 
-    index = visible.nonzero().squeeze(1)
-    t, means2d_v, cov = _project(means[index], quats[index], scales[index], viewmat, fx, fy, cx, cy, width, height)
+    t, means2d, cov = _project(means[index], quats[index], scales[index], viewmat, fx, fy, cx, cy, width, height)
     a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det = a * c - b * b
-    means2d = means.new_zeros(n, 2).index_copy(0, index, means2d_v)
-    conics = means.new_zeros(n, 3).index_copy(0, index, torch.stack([c / det, -b / det, a / det], -1))
-    depths = means.new_zeros(n).index_copy(0, index, t[:, 2])
-    return means2d, conics, depths, radii, boxes
+    return index, radii, means2d, torch.stack([c / det, -b / det, a / det], -1), t[:, 2], boxes
 
 
 def tile_grid(width: int, height: int) -> tuple[int, int]:
@@ -189,14 +186,13 @@ def rasterize_tiles_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, va
 
 
 def rasterize_dense_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, values: Tensor,
-                          depths: Tensor, radii: Tensor, width: int, height: int) -> tuple[Tensor, Tensor]:
-    """Brute-force twin: every pixel against every visible Gaussian (radii > 0), depth order.
+                          depths: Tensor, width: int, height: int) -> tuple[Tensor, Tensor]:
+    """Brute-force twin: every pixel against every (visible) Gaussian, in depth order.
 
-    Same arguments as `rasterize_tiles_torch` but no tiles or boxes. Memory is [H*W, N]:
+    Same arguments as `rasterize_tiles_torch` but no tiles or boxes. Memory is [H*W, V]:
     tiny scenes only. Returns image [H,W,C] and alpha [H,W,1].
     """
-    visible = (radii > 0).nonzero().squeeze(1)
-    order = visible[torch.argsort(depths[visible].detach(), stable=True)]
+    order = torch.argsort(depths.detach(), stable=True)
     ys, xs = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
     pixels = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).to(means2d.dtype) + 0.5
     power = _power(means2d[order], conics[order], pixels)

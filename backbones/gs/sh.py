@@ -64,3 +64,40 @@ def view_directions(means: Tensor, camera_center: Tensor) -> Tensor:
     """Unit directions [N, 3] from `camera_center` [3] to `means` [N, 3] (zero-safe)."""
     offset = means - camera_center.to(means)
     return offset / offset.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+class _ShKernel(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, sh_dc, sh_rest, means, index, center, degree):
+        from backbones.gs._extension import load_extension  # noqa: PLC0415 - the twin needs no build
+
+        ctx.save_for_backward(sh_dc, sh_rest, means, index, center)
+        ctx.degree = degree
+        return load_extension().sh_forward(sh_dc, sh_rest, means, index, center, degree)
+
+    @staticmethod
+    def backward(ctx, v_colors):
+        from backbones.gs._extension import load_extension  # noqa: PLC0415
+
+        sh_dc, sh_rest, means, index, center = ctx.saved_tensors
+        v_dc, v_rest, v_means = load_extension().sh_backward(sh_dc, sh_rest, means, index, center, ctx.degree,
+                                                             v_colors.contiguous())
+        return v_dc, v_rest, v_means, None, None, None
+
+
+def visible_colors(degree: int, sh_dc: Tensor, sh_rest: Tensor, means: Tensor, index: Tensor,
+                   camera_center: Tensor, backend: str = "kernel") -> Tensor:
+    """SH colours [V, 3] (without the +0.5) of the Gaussians `index` [V] seen from `camera_center`.
+
+    sh_dc [N, 1, 3], sh_rest [N, K - 1, 3], means [N, 3]. Differentiable w.r.t. the
+    coefficients and the means (through the view direction); culled Gaussians cost nothing.
+    `backend="kernel"` runs the C++ extension, "torch" this module's `eval_sh` (its twin).
+    """
+    num_sh_bases(degree)
+    if sh_rest.shape[1] + 1 < num_sh_bases(degree):
+        raise ValueError(f"degree {degree} needs {num_sh_bases(degree)} SH bases, got {sh_rest.shape[1] + 1}")
+    if backend == "kernel":
+        return _ShKernel.apply(sh_dc.float().contiguous(), sh_rest.float().contiguous(), means.float().contiguous(),
+                               index.contiguous(), camera_center.float().contiguous(), degree)
+    coeffs = torch.cat([sh_dc[index], sh_rest[index]], 1)
+    return eval_sh(degree, coeffs, view_directions(means[index], camera_center))

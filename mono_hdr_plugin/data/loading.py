@@ -1,6 +1,7 @@
 """The one entry point from a DataConfig to a SceneData: files on disk or a studio scene."""
 
 import warnings
+from dataclasses import replace
 from pathlib import PurePosixPath
 
 import numpy as np
@@ -41,7 +42,9 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
 def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float], notes: list[str]) -> list[View]:
     """The views of the chosen shots; HDR ground truth that carries no HDR information is left out
     (with a note naming its file), negative HDR ground truth refused."""
-    camera = view.camera.scaled(1.0 / factor) if factor > 1 else view.camera
+    camera = view.camera
+    if factor > 1:  # downscale_image crops the remainder: the camera keeps the whole blocks only
+        camera = replace(camera.scaled(1.0 / factor), width=camera.width // factor, height=camera.height // factor)
     hdr = None
     if view.hdr is not None:
         label = str(getattr(view.hdr, "path", view.name))

@@ -57,13 +57,19 @@ def synth(config: SynthConfig) -> Path:
 
 
 def list_scenes(render: bool = True) -> list[dict]:
-    """One row per scene: name, resolution, views, spp, dynamic range (None unless rendered), effects."""
+    """One row per scene: name, resolution, views, spp, effects and, when rendered, the dynamic
+    range and how well two renders with different seeds agree (worst view, dB; None unless rendered)."""
     rows = []
     for scene in SCENES.values():
-        rows.append({"name": scene.name, "resolution": f"{scene.width}x{scene.height}",
-                     "views": scene.rig.views, "spp": scene.spp, "description": scene.description,
-                     "dynamic_range": dynamic_range(render_scene(scene).radiance) if render else None,
-                     "effects": scene.effects})
+        row = {"name": scene.name, "resolution": f"{scene.width}x{scene.height}", "views": scene.rig.views,
+               "spp": scene.spp, "description": scene.description, "effects": scene.effects,
+               "dynamic_range": None, "agreement_hdr": None, "agreement_ldr": None}
+        if render:
+            rendered = render_scene(scene)
+            row.update(dynamic_range=dynamic_range(rendered.radiance),
+                       agreement_hdr=float(rendered.agreement_hdr.min()),
+                       agreement_ldr=float(rendered.agreement_ldr.min()))
+        rows.append(row)
     return rows
 
 
@@ -72,11 +78,18 @@ def list_scenes_command(config: ScenesConfig) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title="Built-in studio scenes")
-    for column in ("name", "resolution", "views", "spp", "dynamic range", "capture effects", "description"):
+    table = Table(title="Built-in studio scenes",
+                  caption="seed agreement: PSNR between two renders of each view with different seeds (worst "
+                          "view), mu-law HDR and the noise-free photo at t3; the ground truth is their mean")
+    for column in ("name", "resolution", "views", "spp", "dynamic range", "seed agreement HDR / LDR",
+                   "capture effects", "description"):
         table.add_column(column)
     for row in list_scenes(config.render):
-        ratio = "not rendered" if row["dynamic_range"] is None else f"{row['dynamic_range']:.2g} : 1"
-        table.add_row(row["name"], row["resolution"], str(row["views"]), str(row["spp"]), ratio,
+        if row["dynamic_range"] is None:
+            ratio = agreement = "not rendered"
+        else:
+            ratio = f"{row['dynamic_range']:.2g} : 1"
+            agreement = f"{row['agreement_hdr']:.1f} / {row['agreement_ldr']:.1f} dB"
+        table.add_row(row["name"], row["resolution"], str(row["views"]), f"2 x {row['spp']}", ratio, agreement,
                       ", ".join(row["effects"]), row["description"])
     Console().print(table)

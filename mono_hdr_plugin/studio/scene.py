@@ -67,8 +67,12 @@ class StudioScene:
     content: Callable[[], dict]
     rig: CameraRig
     resolution: tuple[int, int] = (128, 128)
-    spp: int = 64
-    max_depth: int = 6
+    spp: int = 289
+    """Samples per pixel of each of the two renders whose mean is the ground truth: the square of a
+    prime (what the orthogonal-array sampler takes)."""
+    max_depth: int = 2
+    """Path length: 2 is direct light only, which converges in hundreds of samples (interreflections
+    and caustics of small bright lights need orders of magnitude more)."""
     effects: tuple[str, ...] = ("exposure", "crf", "clip", "quantize")
     capture: CaptureSettings = field(default_factory=CaptureSettings)
     exposures: tuple[float, ...] = STUDIO_EXPOSURES
@@ -77,6 +81,10 @@ class StudioScene:
 
     def __post_init__(self):
         validate_effects(self.effects)
+        root = math.isqrt(self.spp)
+        if root * root != self.spp or root < 2 or any(root % d == 0 for d in range(2, math.isqrt(root) + 1)):
+            raise ValueError(f"scene {self.name!r}: spp must be the square of a prime (4, 9, 25, 49, 121, 169, "
+                             f"289, 361, ...) for orthogonal-array sampling, got {self.spp}")
 
     @property
     def width(self) -> int:
@@ -149,3 +157,33 @@ def lamp(centre, radius: float, radiance: tuple[float, float, float]) -> dict:
     """A visible spherical emitter (a bulb)."""
     return {"type": "sphere", "center": list(centre), "radius": radius,
             "emitter": {"type": "area", "radiance": rgb(*radiance)}}
+
+
+def projector(origin, target, up, fov_deg: float, irradiance: tuple[float, float, float],
+              aspect: float = 1.0, soft_edge: float = 0.0) -> dict:
+    """A point light that throws a rectangle of uniform light (a sun patch through a window):
+    Mitsuba's projector with a constant image of width / height `aspect`. `soft_edge` (a
+    fraction of the width) fades the border smoothly, as the sun's disc does; a hard edge
+    between a light this bright and the dark floor stays noisy at any sample count."""
+    width = 64
+    height = max(2, round(width / aspect))
+    image = np.ones((height, width), np.float32)
+    if soft_edge > 0:
+        ramp = lambda n: np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / (soft_edge * width), 0, 1)
+        image = np.outer(ramp(height), ramp(width))
+        image = image * image * (3 - 2 * image)  # smoothstep: no kink where the fade starts
+    return {"type": "projector", "fov": fov_deg, "scale": 1.0,
+            "irradiance": {"type": "bitmap", "filter_type": "bilinear",
+                           "bitmap": image[..., None] * np.asarray(irradiance, np.float32)},
+            "to_world": look_at_matrix(origin, target, up)}
+
+
+def look_at_matrix(origin, target, up) -> np.ndarray:
+    """Mitsuba's look-at transform (+z towards the target, +y towards `up`) as a numpy [4, 4]."""
+    origin, target, up = (np.asarray(v, np.float64) for v in (origin, target, up))
+    forward = (target - origin) / np.linalg.norm(target - origin)
+    left = np.cross(up, forward)
+    left /= np.linalg.norm(left)
+    matrix = np.eye(4)
+    matrix[:3, 0], matrix[:3, 1], matrix[:3, 2], matrix[:3, 3] = left, np.cross(forward, left), forward, origin
+    return matrix

@@ -81,10 +81,13 @@ class TestPaperTables:
     def test_every_method_gets_the_same_number_of_trials_off_the_reported_scenes(self):
         trials = tuning_trials(BenchPaperConfig(tune_scene="demo"))
         assert set(trials) == {("NeRF", "hdr-nerf"), ("NeRF", "mono"), ("3DGS", "hdr-gs"), ("3DGS", "mono")}
-        for row in ("NeRF", "3DGS"):  # a row's methods get the same grid (backbones may tune different spaces)
-            baseline, mono = trials[(row, "hdr-nerf" if row == "NeRF" else "hdr-gs")], trials[(row, "mono")]
-            assert len(baseline) == len(mono) > 0
-            assert [spec.overrides for spec in baseline] == [spec.overrides for spec in mono]
+        for row in ("NeRF", "3DGS"):
+            assert len({len(specs) for (r, _), specs in trials.items() if r == row}) == 1, row
+        gs_paths = {path for spec in trials[("3DGS", "mono")] for path, _ in spec.overrides}
+        assert {"backbone.lr_sh_dc", "backbone.lr_means", "hdr.converter_lr"} <= gs_paths
+        assert len(trials[("3DGS", "hdr-gs")]) == 8, "2 x 2 backbone rates times 2 converter rates"
+        nerf_paths = {path for spec in trials[("NeRF", "mono")] for path, _ in spec.overrides}
+        assert {"backbone.field.grid_lr", "backbone.field.mlp_lr", "hdr.converter_lr"} <= nerf_paths
         assert all(spec.scene == "demo" for specs in trials.values() for spec in specs)
 
     def test_best_recipe_is_the_highest_hdr_psnr(self, tmp_path):

@@ -2,7 +2,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PlainH2L, PlainL2H)
+from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear,
+                                        PlainH2L, PlainL2H, per_channel_relu_mlp)
 
 
 def reference_l2h(converter: L2HColorConverter, ldr: torch.Tensor) -> torch.Tensor:
@@ -15,6 +16,61 @@ def reference_l2h(converter: L2HColorConverter, ldr: torch.Tensor) -> torch.Tens
         gain, saturation, noise = F.relu(heads[..., 0:1]), F.relu(heads[..., 1:2]), heads[..., 2:3]
         outputs.append(F.softplus(x + gain * saturation + noise))
     return torch.cat(outputs, -1)
+
+
+def matrix_form(x: torch.Tensor, first: PerChannelLinear, second: PerChannelLinear) -> torch.Tensor:
+    """second(relu(first(x))) as two batched matrix products: x [C, N] -> [C, N, K]."""
+    return second(F.relu(first(x[..., None])))
+
+
+class TestPerChannelReluMlp:
+    @pytest.mark.parametrize("heads", [1, 3])
+    def test_values_and_gradients_match_the_matrix_form(self, heads):
+        torch.manual_seed(3)
+        first, second = PerChannelLinear(1, 64), PerChannelLinear(64, heads)
+        with torch.no_grad():
+            first.weight[1, 0, :5] = 0.0  # units that never switch: constant on or off
+            first.bias[1, 0, :3] = 0.4
+            first.bias[1, 0, 3:5] = -0.4
+        x = torch.cat([torch.rand(3, 200) * 6 - 3, torch.tensor([[0.0], [10.0], [-10.0]])], 1)
+        weights = torch.rand(3, 201, heads)
+        outputs, grads = [], []
+        for evaluate in (per_channel_relu_mlp, matrix_form):
+            leaf = x.clone().requires_grad_()
+            for module in (first, second):
+                module.zero_grad()
+            out = evaluate(leaf, first, second)
+            (out * weights).sum().backward()
+            outputs.append(out)
+            grads.append([leaf.grad] + [p.grad.clone() for p in (*first.parameters(), *second.parameters())])
+        assert outputs[0].shape == (3, 201, heads)
+        torch.testing.assert_close(outputs[0], outputs[1], rtol=1e-5, atol=1e-5)
+        for got, want in zip(*grads):
+            torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-4)
+
+    def test_inputs_on_a_kink_are_continuous(self):
+        first, second = PerChannelLinear(1, 8), PerChannelLinear(8, 2)
+        kinks = -first.bias[:, 0, :] / first.weight[:, 0, :]
+        x = kinks.detach()
+        torch.testing.assert_close(per_channel_relu_mlp(x, first, second), matrix_form(x, first, second),
+                                   rtol=1e-5, atol=1e-5)
+
+    def test_gradcheck(self):
+        first, second = PerChannelLinear(1, 6).double(), PerChannelLinear(6, 3).double()
+        x = torch.rand(3, 5, dtype=torch.float64, requires_grad=True)
+        params = (first.weight, first.bias, second.weight, second.bias)
+        assert torch.autograd.gradcheck(lambda x: per_channel_relu_mlp(x, first, second), (x,))
+        assert torch.autograd.gradcheck(
+            lambda w1, b1, w2, b2: _functional(x.detach(), w1, b1, w2, b2),
+            tuple(p.detach().clone().requires_grad_() for p in params))
+
+
+def _functional(x, w1, b1, w2, b2):
+    """per_channel_relu_mlp as a function of the weights, for gradcheck."""
+    first, second = PerChannelLinear(1, w1.shape[2]).double(), PerChannelLinear(w1.shape[2], w2.shape[2]).double()
+    del first.weight, first.bias, second.weight, second.bias
+    first.weight, first.bias, second.weight, second.bias = w1, b1, w2, b2
+    return per_channel_relu_mlp(x, first, second)
 
 
 class TestL2HColorConverter:

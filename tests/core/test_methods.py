@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from mono_hdr_plugin.backbone import LdrFeatures
-from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfig, MonoHDR, Targets, build_method,
-                                     method_names)
+from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfig, MethodOutput, MonoHDR, Targets,
+                                     build_method, method_names)
 from mono_hdr_plugin.registry import RegistryError
 from mono_hdr_plugin.metrics import normalise_hdr
 
@@ -142,6 +142,19 @@ class TestBaselines:
         for cls in (HdrNerfBaseline, HdrGsBaseline):
             out = cls(MethodConfig(), "mse")(features, 1.0)
             assert torch.isfinite(out.hdr).all() and torch.isfinite(out.ldr).all()
+
+
+class TestSaturatedPhotos:
+    def test_above_one_where_the_photo_clipped_is_no_error(self):
+        """A clipped pixel (1.0) only says the truth is >= 1; an unclipped one is compared as usual."""
+        method = MonoHDR(MethodConfig(use_hdr_loss=False, use_h2l_loss=False), "mse")
+        photo = torch.tensor([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]])
+        ldr = torch.tensor([[1.7, 1.0, 0.8], [0.7, 0.5, 0.5]], requires_grad=True)
+        loss = method.losses(MethodOutput(ldr=ldr, hdr=torch.ones(2, 3)), Targets(ldr=photo, exposure=1.0), 0)["ldr"]
+        loss.backward()
+        assert loss.item() == pytest.approx((0.2**2 + 0.2**2) / 6)
+        assert ldr.grad[0, 0] == 0 and ldr.grad[0, 1] == 0, "at or above 1 on a clipped pixel: free"
+        assert ldr.grad[0, 2] < 0 and ldr.grad[1, 0] > 0, "below a clipped pixel, or off an unclipped one: pulled"
 
 
 def test_every_method_builds():

@@ -76,12 +76,12 @@ class TestGaussianStateOutsideParameters:
         trainer, _ = trained(tmp_path, voxel_scene, "gs", "mono", steps=4)
         backbone = trainer.backbone
         assert backbone.active_sh_degree == 3  # 4 steps of a 4-step run: the ramp is done
-        backbone.density_control.state.grad2d_sum.uniform_()
+        backbone.strategy_state["grad2d_sum"].uniform_()
         fresh = Trainer(trainer.config, "gs", voxel_scene).backbone
         assert fresh.active_sh_degree == 0
         fresh.load_state_dict(backbone.state_dict())
         assert fresh.active_sh_degree == 3
-        torch.testing.assert_close(fresh.density_control.state.grad2d_sum, backbone.density_control.state.grad2d_sum)
+        torch.testing.assert_close(fresh.strategy_state["grad2d_sum"], backbone.strategy_state["grad2d_sum"])
 
 
 class TestCommandLine:

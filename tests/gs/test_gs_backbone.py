@@ -1,14 +1,18 @@
-"""GaussianBackbone: initialisation, rendering interface, schedules, density control, PLY."""
+"""GaussianBackbone: initialisation, presets, rendering interface, schedules, PLY."""
 
 import dataclasses
+import math
 
 import pytest
 import torch
 
-from backbones.gs import GaussianBackbone, GaussianConfig, export_ply, load_ply
+from backbones.gs import (DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy, export_ply, load_ply,
+                          render_gaussians)
+from backbones.gs.sh import visible_colors
 from gs_scenes import make_camera
 from mono_hdr_plugin.backbone import SceneInfo
 from mono_hdr_plugin.cameras import look_at
+from mono_hdr_plugin.methods import MethodConfig, MonoHDR
 
 
 def make_scene(points: int | None = 300, seed: int = 0) -> SceneInfo:
@@ -23,6 +27,12 @@ def make_scene(points: int | None = 300, seed: int = 0) -> SceneInfo:
     return scene
 
 
+def hide_some(backbone: GaussianBackbone, camera, rows: int = 30) -> None:
+    """Move the first `rows` Gaussians behind `camera`, so it culls them."""
+    with torch.no_grad():
+        backbone.means[:rows] = camera.center - (1.0 + torch.rand(rows, 1)) * camera.c2w[:3, 2]
+
+
 def make_optimizer(backbone: GaussianBackbone) -> torch.optim.Adam:
     return torch.optim.Adam(backbone.parameter_groups(), eps=1e-15)
 
@@ -30,23 +40,12 @@ def make_optimizer(backbone: GaussianBackbone) -> torch.optim.Adam:
 def train_step(backbone, optimizer, camera, target, step):
     features = backbone.render_ldr_features(camera)
     image = features.composite(features.colors)
-    loss = (image - target).abs().mean()
+    loss = (image - target).abs().mean() + sum(backbone.regularisation().values(), torch.tensor(0.0))
     optimizer.zero_grad()
     loss.backward()
     optimizer.step()
     backbone.after_step(step, features, optimizer)
     return loss.item()
-
-
-def assert_optimizer_consistent(backbone, optimizer):
-    n = backbone.num_gaussians
-    for group in optimizer.param_groups:
-        (param,) = group["params"]
-        assert param is getattr(backbone, group["name"]), f"{group['name']} not the module's parameter"
-        assert param.shape[0] == n, group["name"]
-        state = optimizer.state.get(param)
-        if state:
-            assert state["exp_avg"].shape == param.shape and state["exp_avg_sq"].shape == param.shape
 
 
 class TestInitialisation:
@@ -56,32 +55,73 @@ class TestInitialisation:
         assert backbone.num_gaussians == 200
         torch.testing.assert_close(backbone.means.detach(), scene.points)
         camera = scene.train_cameras[0]
-        backbone.active_sh_degree = 0
         features = backbone.render_ldr_features(camera)
-        torch.testing.assert_close(features.colors, scene.point_colors.float() / 255, rtol=0, atol=1e-5)
+        index = features.extras["projected"].index
+        assert index.numel() > 100
+        torch.testing.assert_close(features.colors, scene.point_colors[index].float() / 255, rtol=0, atol=1e-5)
         assert backbone.sh_rest.shape == (200, 15, 3)
         assert (backbone.log_scales.exp() > 0).all() and torch.isfinite(backbone.log_scales).all()
+
+    def test_initial_scale_follows_point_spacing(self):
+        """init_scale times the RMS distance to the 3 nearest points: a regular grid of spacing d gives d."""
+        grid = torch.stack(torch.meshgrid(*[torch.arange(6.0) * 0.1] * 3, indexing="ij"), -1).reshape(-1, 3)
+        scene = make_scene(points=None)
+        scene.points = grid - 0.25
+        backbone = GaussianBackbone(GaussianConfig(init_scale=0.5), scene)
+        inner = ((grid > 0.05) & (grid < 0.45)).all(-1)  # points with 6 neighbours at distance 0.1
+        torch.testing.assert_close(backbone.log_scales.exp()[inner], torch.full((int(inner.sum()), 3), 0.05))
+
+    def test_points_beyond_the_budget_are_subsampled(self):
+        scene = make_scene(points=300)
+        backbone = GaussianBackbone(GaussianConfig(strategy=McmcStrategy(max_gaussians=120)), scene)
+        assert backbone.num_gaussians == backbone.budget == 120
+        rows = (backbone.means.detach()[:, None, :] == scene.points[None]).all(-1)
+        assert (rows.sum(1) == 1).all(), "every Gaussian starts on one of the given points"
 
     def test_random_inside_bounds(self):
         backbone = GaussianBackbone(GaussianConfig(random_init_points=500), make_scene(points=None))
         assert backbone.num_gaussians == 500
         assert backbone.means.abs().max() <= 1.0
 
+    def test_budget_follows_the_training_pixels(self):
+        scene = make_scene(points=None)
+        pixels = sum(c.width * c.height for c in scene.train_cameras)
+        backbone = GaussianBackbone(GaussianConfig(strategy=McmcStrategy(gaussians_per_pixel=0.25)), scene)
+        assert backbone.budget == int(0.25 * pixels) and backbone.num_gaussians <= backbone.budget
+
     def test_rejects_bad_config(self):
         with pytest.raises(ValueError, match="SH degree"):
             GaussianBackbone(GaussianConfig(sh_degree=4), make_scene())
         with pytest.raises(ValueError, match="backend"):
             GaussianBackbone(GaussianConfig(backend="cuda"), make_scene())
+        with pytest.raises(ValueError, match="--backbone.strategy.max-gaussians"):
+            GaussianBackbone(GaussianConfig(strategy=McmcStrategy(max_gaussians=0)), make_scene())
         scene = make_scene()
         scene.point_colors = scene.point_colors[:5]
         with pytest.raises(ValueError, match="point_colors"):
             GaussianBackbone(GaussianConfig(), scene)
 
-    def test_config_fields_documented(self):
-        source = open(GaussianConfig.__module__.replace(".", "/") + ".py").read()
-        for f in dataclasses.fields(GaussianConfig):
-            after = source.split(f"    {f.name}:", 1)[1].splitlines()[1].strip()
+    @pytest.mark.parametrize("config_class", [GaussianConfig, McmcStrategy, DefaultStrategy])
+    def test_config_fields_documented(self, config_class):
+        source = open(config_class.__module__.replace(".", "/") + ".py").read()
+        body = source.split(f"class {config_class.__name__}", 1)[1]
+        for f in dataclasses.fields(config_class):
+            after = body.split(f"    {f.name}:", 1)[1].splitlines()[1].strip()
             assert after.startswith('"""'), f"field {f.name} needs a docstring line for tyro"
+
+
+class TestPresets:
+    def test_cpu_first_then_paper(self):
+        presets = GaussianBackbone.presets()
+        assert list(presets) == ["cpu", "paper"]
+        assert isinstance(presets["cpu"].strategy, McmcStrategy)
+        assert presets["paper"] == GaussianConfig() and isinstance(presets["paper"].strategy, DefaultStrategy)
+
+    def test_paper_preset_is_the_official_recipe(self):
+        paper = GaussianBackbone.presets()["paper"]
+        assert (paper.lr_means, paper.lr_sh_dc, paper.lr_opacities, paper.lr_scales, paper.lr_quats) == \
+            (1.6e-4, 2.5e-3, 0.05, 5e-3, 1e-3)
+        assert (paper.strategy.grad_threshold, paper.strategy.refine_stop, paper.sh_increase_every) == (2e-4, 15_000, 1000)
 
 
 class TestRenderLdrFeatures:
@@ -89,28 +129,75 @@ class TestRenderLdrFeatures:
         scene = make_scene()
         backbone = GaussianBackbone(GaussianConfig(), scene)
         camera = scene.train_cameras[0]
+        hide_some(backbone, camera)
         features = backbone.render_ldr_features(camera)
-        n = backbone.num_gaussians
-        assert features.colors.shape == (n, 3) and features.raw_colors.shape == (n, 3)
+        projected = features.extras["projected"]
+        visible = projected.index.numel()
+        assert 0 < visible < backbone.num_gaussians, "the test scene has culled Gaussians"
+        assert features.colors.shape == (visible, 3) and features.raw_colors.shape == (visible, 3)
         assert (features.colors >= 0).all()
         torch.testing.assert_close(features.colors, (features.raw_colors + 0.5).clamp_min(0))
+        assert "alpha" not in features.extras, "nothing is rasterised before composite is called"
         image = features.composite(torch.cat([features.colors, features.colors * 2], -1))
         assert image.shape == (camera.height, camera.width, 6)
         torch.testing.assert_close(image[..., 3:], 2 * image[..., :3], rtol=1e-5, atol=1e-6)
         assert features.extras["alpha"].shape == (camera.height, camera.width, 1)
-        assert features.extras["depth"].shape == (camera.height, camera.width, 1)
-        assert features.extras["means2d"].shape == (n, 2)
-        assert features.extras["radii"].shape == (n,) and features.extras["radii"].max() > 0
+        assert projected.means2d.shape == (visible, 2) and projected.radii.shape == (backbone.num_gaussians,)
 
-    def test_alpha_available_before_composite(self):
+    def test_depth_only_when_asked(self):
         scene = make_scene()
         backbone = GaussianBackbone(GaussianConfig(), scene)
-        features = backbone.render_ldr_features(scene.train_cameras[0])
-        assert "alpha" in features.extras
-        alpha_first = features.extras["alpha"].clone()
-        features.composite(features.colors)
-        torch.testing.assert_close(features.extras["alpha"], alpha_first)
-        assert alpha_first.max() > 0.1
+        camera = scene.train_cameras[0]
+        features = backbone.render_ldr_features(camera)
+        depth = features.extras["render_depth"]()
+        hit = features.composite(features.colors.new_ones(features.colors.shape[0], 1)) > 0.5
+        assert depth.shape == (camera.height, camera.width, 1)
+        distance = (backbone.means.detach() - camera.center).norm(dim=-1)
+        assert ((depth[hit] > 0.5 * distance.min()) & (depth[hit] < distance.max())).all()
+
+    def test_renders_get_the_depth_pass_when_asked(self):
+        """Pipeline.render(with_depth=True) (viewer depth, videos, point clouds) runs the render_depth
+        pass, with the composite's alpha beside it; evaluation's renders skip it."""
+        from mono_hdr_plugin.pipeline import Pipeline
+
+        scene = make_scene()
+        backbone = GaussianBackbone(GaussianConfig(), scene).eval()
+        pipeline = Pipeline("gs", backbone, MonoHDR(MethodConfig(), backbone.loss_kind)).eval()
+        camera = scene.train_cameras[0]
+        frame = pipeline.render(camera, 1.0, with_depth=True)
+        assert pipeline.render(camera, 1.0).depth is None
+        with torch.no_grad():
+            features = backbone.render_ldr_features(camera)
+            depth = features.extras["render_depth"]()
+            features.composite(features.colors)
+        torch.testing.assert_close(frame.depth, depth[..., 0])
+        torch.testing.assert_close(frame.alpha, features.extras["alpha"][..., 0])
+        assert (frame.depth > 0).any()
+
+    def test_converter_on_visible_gaussians_renders_as_on_all(self):
+        """The method's L2H-CC on the V visible Gaussians gives the image that running it on all N
+        and compositing every Gaussian gives."""
+        torch.manual_seed(0)
+        scene = make_scene(points=400)
+        backbone = GaussianBackbone(GaussianConfig(), scene)
+        backbone.active_sh_degree = 3
+        with torch.no_grad():
+            backbone.sh_rest.normal_(0, 0.2)
+        method = MonoHDR(MethodConfig(), "l1_dssim")
+        camera = scene.train_cameras[1]
+        hide_some(backbone, camera)
+        features = backbone.render_ldr_features(camera)
+        output = method(features, 1.0)
+        everyone = torch.arange(backbone.num_gaussians)
+        assert features.colors.shape[0] < everyone.numel()
+        colors = (visible_colors(3, backbone.sh_dc, backbone.sh_rest, backbone.means, everyone, camera.center)
+                  + 0.5).clamp_min(0)
+        values = torch.cat([colors, method.l2h(colors)], -1)
+        image, _, _ = render_gaussians(backbone.means, backbone.quats, torch.exp(backbone.log_scales),
+                                       torch.sigmoid(backbone.opacity_logits), values, camera)
+        assert output.hdr.max() > 0.1
+        torch.testing.assert_close(output.ldr, image[..., :3], rtol=0, atol=0)
+        torch.testing.assert_close(output.hdr, image[..., 3:], rtol=0, atol=0)
 
     def test_two_training_steps_lower_the_loss(self):
         scene = make_scene()
@@ -124,7 +211,7 @@ class TestRenderLdrFeatures:
         assert torch.isfinite(backbone.means).all()
 
 
-class TestLearningRate:
+class TestSchedules:
     def test_position_decay_endpoints(self):
         backbone = GaussianBackbone(GaussianConfig(), make_scene())
         backbone.set_run_length(1000)
@@ -137,86 +224,34 @@ class TestLearningRate:
     def test_groups_named_and_complete(self):
         backbone = GaussianBackbone(GaussianConfig(), make_scene())
         groups = backbone.parameter_groups()
-        assert {g["name"] for g in groups} == {"means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits"}
+        assert [g["name"] for g in groups] == ["means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits"]
         assert sum(p.numel() for g in groups for p in g["params"]) == sum(p.numel() for p in backbone.parameters())
 
-
-class TestDensityControl:
-    def _trained(self, **config):
+    def test_repeated_run_length_estimates_rescale_and_keep_state(self):
+        """--max-seconds calls set_run_length again and again: the SH degree never drops, the
+        strategy statistics survive, and the schedules follow the latest length."""
         scene = make_scene()
-        backbone = GaussianBackbone(GaussianConfig(**config), scene)
-        backbone.set_run_length(300)
+        backbone = GaussianBackbone(GaussianConfig(), scene)
         optimizer = make_optimizer(backbone)
         camera = scene.train_cameras[0]
-        target = torch.rand(camera.height, camera.width, 3, generator=torch.Generator().manual_seed(1))
-        return backbone, optimizer, camera, target
-
-    def test_clone_and_split_keep_optimizer_aligned(self):
-        backbone, optimizer, camera, target = self._trained(prune_opacity=0.0)
-        train_step(backbone, optimizer, camera, target, 0)  # fills Adam's moments
-        n = backbone.num_gaussians
-        for group in optimizer.param_groups:  # tag each row's moments with its row number
-            rows = torch.arange(n, dtype=torch.float32).reshape(-1, *[1] * (group["params"][0].dim() - 1))
-            optimizer.state[group["params"][0]]["exp_avg"] = rows.expand_as(group["params"][0]).clone()
-        with torch.no_grad():
-            backbone.log_scales[:4] = -8.0   # small: cloned
-            backbone.log_scales[4:8] = -0.5  # large: split
-        old_means = backbone.means.detach().clone()
-        old_scales = backbone.log_scales.detach().clone()
-        control = backbone.density_control
-        control.state = type(control.state).empty(n)  # forget step 0's real gradients
-        means2d = torch.zeros(n, 2, requires_grad=True)
-        means2d.grad = torch.zeros(n, 2)
-        means2d.grad[:8] = 1.0  # only rows 0..7 exceed the gradient threshold
-        step = control.schedule.refine_every * (control.schedule.refine_start // control.schedule.refine_every + 1)
-        control.step_post_backward(backbone, optimizer, step, means2d, torch.ones(n, dtype=torch.int32),
-                                   camera.width, camera.height)
-
-        assert backbone.num_gaussians == n + 4 + 4  # 4 clones, 4 splits into 2
-        assert_optimizer_consistent(backbone, optimizer)
-        tags = optimizer.state[backbone.means]["exp_avg"][:, 0]
-        survivors = [i for i in range(n) if not 4 <= i < 8]
-        torch.testing.assert_close(tags[:n - 4], torch.tensor(survivors, dtype=torch.float32))
-        torch.testing.assert_close(backbone.means.detach()[:n - 4], old_means[survivors])
-        assert tags[n - 4:].abs().max() == 0, "new rows start with zero moments"
-        torch.testing.assert_close(backbone.means.detach()[n - 4:n], old_means[:4])  # clones
-        torch.testing.assert_close(backbone.log_scales.detach()[n:], (old_scales[4:8] - torch.log(torch.tensor(1.6))).repeat(2, 1))
-        train_step(backbone, optimizer, camera, target, step + 1)  # Adam still steps
-        assert torch.isfinite(backbone.means).all()
-
-    def test_prune_removes_transparent_rows(self):
-        backbone, optimizer, camera, target = self._trained(grad_threshold=1e9)
-        with torch.no_grad():
-            backbone.opacity_logits[:50] = -20.0
-        keep_means = backbone.means.detach()[50:].clone()
-        schedule = backbone.density_control.schedule
-        step = schedule.refine_every * (schedule.refine_start // schedule.refine_every + 1)
-        train_step(backbone, optimizer, camera, target, step - 1)
-        moment = optimizer.state[backbone.means]["exp_avg"][50:].clone()
-        train_step(backbone, optimizer, camera, target, step)
-        assert backbone.num_gaussians == keep_means.shape[0]
-        assert_optimizer_consistent(backbone, optimizer)
-        assert moment.shape == optimizer.state[backbone.means]["exp_avg"].shape
-
-    def test_opacity_reset_clears_moments(self):
-        backbone, optimizer, camera, target = self._trained(grad_threshold=1e9)
-        reset = backbone.density_control.schedule.reset_every
-        train_step(backbone, optimizer, camera, target, reset - 1)
-        with torch.no_grad():
-            backbone.opacity_logits.fill_(3.0)
-        train_step(backbone, optimizer, camera, target, reset)
-        assert torch.sigmoid(backbone.opacity_logits).max() <= 0.0100001
-        assert optimizer.state[backbone.opacity_logits]["exp_avg"].abs().max() == 0
-        assert_optimizer_consistent(backbone, optimizer)
-
-    def test_schedule_scales_with_run_length(self):
-        backbone = GaussianBackbone(GaussianConfig(), make_scene())
-        backbone.set_run_length(30_000)
-        full = backbone.density_control.schedule
-        backbone.set_run_length(3_000)
-        short = backbone.density_control.schedule
-        assert (full.refine_start, full.refine_stop, full.refine_every, full.reset_every) == (500, 15_000, 100, 3000)
-        assert (short.refine_start, short.refine_stop, short.refine_every, short.reset_every) == (50, 1500, 10, 300)
+        target = torch.full((camera.height, camera.width, 3), 0.5)
+        backbone.set_run_length(90)  # SH degree +1 every 3 steps, refine every 10
+        for step in range(7):
+            train_step(backbone, optimizer, camera, target, step)
+        assert backbone.active_sh_degree == 2
+        statistics = {k: v.clone() for k, v in backbone.strategy_state.items()}
+        assert statistics["visible_count"].max() == 7
+        for estimate in (3000, 120, 30_000):
+            backbone.set_run_length(estimate)
+            for name, value in statistics.items():
+                torch.testing.assert_close(backbone.strategy_state[name], value)
+        train_step(backbone, optimizer, camera, target, 7)  # a 30k estimate: degree 2 would be "too early"
+        assert backbone.active_sh_degree == 2
+        assert backbone.config.strategy.schedule(backbone.max_steps).every == 100
+        backbone.set_run_length(300)
+        assert backbone.config.strategy.schedule(backbone.max_steps).every == 10
+        base = backbone.parameter_groups()[0]["lr"]
+        assert backbone.learning_rate("means", 300, base) == pytest.approx(base / 100)
 
 
 class TestPly:
@@ -238,6 +273,7 @@ class TestPly:
         a = backbone.render_ldr_features(camera)
         b = other.render_ldr_features(camera)
         torch.testing.assert_close(b.composite(b.colors), a.composite(a.colors))
+        assert other.strategy_state["grad2d_sum"].shape == (backbone.num_gaussians,)
 
     def test_standard_attribute_names(self, tmp_path):
         from plyfile import PlyData
@@ -254,3 +290,9 @@ class TestPly:
         (tmp_path / "junk.ply").write_text("not a ply")
         with pytest.raises(Exception):
             load_ply(tmp_path / "junk.ply")
+
+
+def test_log_of_init_opacity_is_a_logit():
+    backbone = GaussianBackbone(GaussianConfig(init_opacity=0.3), make_scene(points=10))
+    torch.testing.assert_close(torch.sigmoid(backbone.opacity_logits), torch.full((10,), 0.3))
+    assert math.isclose(backbone.budget, DefaultStrategy().max_gaussians)

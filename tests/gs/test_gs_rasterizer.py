@@ -17,7 +17,7 @@ def render_with_grads(scene: dict, camera, backend: str):
                                   camera, backend=backend)
     projected.means2d.retain_grad()
     channels = leaves["values"].shape[1]
-    values = torch.cat([leaves["values"], projected.depths[:, None]], 1)
+    values = torch.cat([leaves["values"][projected.index], projected.depths[:, None]], 1)
     image, alpha = rasterize(projected, values)
     weights = pixel_weights(camera.height, camera.width, channels + 2)
     loss = (image * weights[..., :-1]).sum() + (alpha * weights[..., -1:]).sum()
@@ -42,6 +42,8 @@ class TestProjectGaussians:
         twin = project_gaussians(*(scene[k] for k in PARAMS[:4]), camera, backend="torch")
         assert kernel.radii.gt(0).sum() > 100, "scene should be mostly visible"
         assert torch.equal(kernel.radii, twin.radii)
+        assert torch.equal(kernel.index, twin.index)
+        assert torch.equal(kernel.index, kernel.radii.nonzero().squeeze(1))
         assert torch.equal(kernel.boxes, twin.boxes)
         torch.testing.assert_close(kernel.means2d, twin.means2d, rtol=1e-5, atol=1e-4)
         torch.testing.assert_close(kernel.conics, twin.conics, rtol=1e-5, atol=1e-6)
@@ -72,6 +74,7 @@ class TestProjectGaussians:
         assert radii[0] > 0, "zero quaternion renders as unrotated"
         assert radii[1] > 0, "zero scale still has the 0.3 px^2 dilation"
         assert radii[7] > 0, "huge radius is kept (clipped to the image)"
+        assert projected.means2d.shape[0] == projected.index.shape[0] == int((projected.radii > 0).sum())
         for name in ("means2d", "conics", "depths"):
             assert torch.isfinite(getattr(projected, name)).all(), name
         assert (projected.boxes[:, 2] <= camera.width).all() and (projected.boxes[:, 3] <= camera.height).all()
@@ -155,9 +158,10 @@ class TestRasterize:
         """One 6-channel pass equals two 3-channel passes (LDR + HDR in one go)."""
         scene = random_gaussians(300, seed=4, channels=6)
         projected = project_gaussians(*(scene[k] for k in PARAMS[:4]), camera)
-        both, _ = rasterize(projected, scene["values"])
-        first, _ = rasterize(projected, scene["values"][:, :3])
-        second, _ = rasterize(projected, scene["values"][:, 3:])
+        values = scene["values"][projected.index]
+        both, _ = rasterize(projected, values)
+        first, _ = rasterize(projected, values[:, :3])
+        second, _ = rasterize(projected, values[:, 3:])
         torch.testing.assert_close(both, torch.cat([first, second], -1), rtol=0, atol=1e-6)
 
     def test_empty_scene_is_black(self, camera):
@@ -172,6 +176,8 @@ class TestRasterize:
         projected = project_gaussians(*(scene[k] for k in PARAMS[:4]), camera)
         with pytest.raises(ValueError, match="values"):
             rasterize(projected, scene["values"][:4])
+        with pytest.raises(ValueError, match="values"):
+            render_gaussians(*(scene[k] for k in PARAMS[:4]), scene["values"][:4], camera)
         with pytest.raises(ValueError, match="pixels=None"):
             project_gaussians(*(scene[k] for k in PARAMS[:4]), camera.with_pixels(torch.zeros(3, 2)))
 
@@ -183,13 +189,14 @@ class TestDenseTwin:
         scene = random_gaussians(60, seed=seed, channels=4, dtype=torch.float64)
         viewmat = camera.w2c.double()
         args = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near)
-        means2d, conics, depths, radii, boxes = reference.project_gaussians_torch(
+        index, _, means2d, conics, depths, boxes = reference.project_gaussians_torch(
             scene["means"], scene["quats"], scene["scales"], scene["opacities"], viewmat, *args)
         offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-        tiled, tiled_alpha = reference.rasterize_tiles_torch(means2d, conics, scene["opacities"], scene["values"],
+        opacities, values = scene["opacities"][index], scene["values"][index]
+        tiled, tiled_alpha = reference.rasterize_tiles_torch(means2d, conics, opacities, values,
                                                              boxes, offsets, ids, camera.width, camera.height)
-        dense, dense_alpha = reference.rasterize_dense_torch(means2d, conics, scene["opacities"], scene["values"],
-                                                             depths, radii, camera.width, camera.height)
+        dense, dense_alpha = reference.rasterize_dense_torch(means2d, conics, opacities, values,
+                                                             depths, camera.width, camera.height)
         assert dense_alpha.max() > 0.5
         torch.testing.assert_close(tiled, dense, rtol=1e-10, atol=1e-10)
         torch.testing.assert_close(tiled_alpha, dense_alpha, rtol=1e-10, atol=1e-10)
@@ -206,11 +213,11 @@ class TestGradcheck:
         args = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near)
 
         def render(means, quats, scales, opacities, values):
-            means2d, conics, depths, _, boxes = reference.project_gaussians_torch(
+            index, _, means2d, conics, depths, boxes = reference.project_gaussians_torch(
                 means, quats, scales, opacities, viewmat, *args)
             offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-            return reference.rasterize_tiles_torch(means2d, conics, opacities, values, boxes, offsets, ids,
-                                                   camera.width, camera.height)
+            return reference.rasterize_tiles_torch(means2d, conics, opacities[index], values[index], boxes, offsets,
+                                                   ids, camera.width, camera.height)
 
         inputs = tuple(scene[k].clone().requires_grad_() for k in PARAMS)
         assert render(*inputs)[1].max() > 0.3
@@ -228,12 +235,12 @@ def render_with_grads_float64(scene: dict, camera):
     """Float64 torch twin of render_with_grads (the public API computes in float32)."""
     leaves = {k: scene[k].clone().requires_grad_() for k in PARAMS}
     args = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near)
-    means2d, conics, depths, radii, boxes = reference.project_gaussians_torch(
+    index, radii, means2d, conics, depths, boxes = reference.project_gaussians_torch(
         leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], camera.w2c.double(), *args)
     means2d.retain_grad()
     offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-    values = torch.cat([leaves["values"], depths[:, None]], 1)
-    image, alpha = reference.rasterize_tiles_torch(means2d, conics, leaves["opacities"], values, boxes,
+    values = torch.cat([leaves["values"][index], depths[:, None]], 1)
+    image, alpha = reference.rasterize_tiles_torch(means2d, conics, leaves["opacities"][index], values, boxes,
                                                    offsets, ids, camera.width, camera.height)
     weights = pixel_weights(camera.height, camera.width, values.shape[1] + 1).double()
     ((image * weights[..., :-1]).sum() + (alpha * weights[..., -1:]).sum()).backward()

@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from backbones.gs import GaussianConfig
+from backbones.gs import DefaultStrategy, GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
@@ -75,8 +75,8 @@ def backbone_config(backbone: str, **overrides):
     if backbone == "voxel-grid":
         return VoxelGridConfig(**{"resolution": 8, "samples_per_ray": 16, **overrides})
     if backbone == "gs":
-        return GaussianConfig(**{"sh_degree": 1, "random_init_points": 150, "max_gaussians": 500,
-                                 **overrides})
+        return GaussianConfig(**{"sh_degree": 1, "random_init_points": 150,
+                                 "strategy": DefaultStrategy(max_gaussians=500), **overrides})
     if backbone == "nerf":
         field = overrides.pop("field", "cpu")
         return NerfConfig(field=MlpFieldConfig(width=16, depth=3, skip_layer=1, coarse_samples=8, fine_samples=8,

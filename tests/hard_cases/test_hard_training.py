@@ -124,7 +124,7 @@ def test_all_gaussians_pruned(tmp_path, backbone, steps):
     trainer = make_trainer(tmp_path, backbone, scene, steps)
     with torch.no_grad():
         trainer.backbone.opacity_logits.fill_(-12.0)  # sigmoid = 6e-6 < prune_opacity 0.005
-    assert (torch.sigmoid(trainer.backbone.opacity_logits) < trainer.backbone.config.prune_opacity).all()
+    assert (torch.sigmoid(trainer.backbone.opacity_logits) < trainer.backbone.config.strategy.prune_opacity).all()
     train_and_check(trainer, steps)
     assert trainer.backbone.num_gaussians >= 1
 

@@ -50,7 +50,7 @@ def textured_scene(texture: Path, views: int, resolution: int) -> StudioScene:
         content=lambda: textured_content(texture),
         rig=CameraRig(target=(0.0, 0.3, 0.4), radius=3.2, azimuth_deg=(-150.0, -30.0), elevation_deg=(20.0, 40.0),
                       fov_deg=55.0, views=views),
-        resolution=(resolution, resolution), spp=8, max_depth=2)
+        resolution=(resolution, resolution), spp=9, max_depth=2)
 
 
 @dataclass

@@ -126,9 +126,9 @@ class TestTrainOnResult:
         from mono_hdr_plugin.train import Trainer, train_config_for
 
         if "gs" in BACKBONES.available():
-            from backbones.gs.model import GaussianConfig
+            from backbones.gs import DefaultStrategy, GaussianConfig
 
-            name, backbone_config = "gs", GaussianConfig(sh_degree=0, refine_start=10**9)
+            name, backbone_config = "gs", GaussianConfig(sh_degree=0, strategy=DefaultStrategy(refine_start=10**9))
         else:
             import register_backbone  # examples/, on sys.path via tests/conftest.py
 

@@ -1,5 +1,6 @@
 """Studio scenes: registry, rendering and its cache, cameras that match Mitsuba's, datasets."""
 
+import math
 from dataclasses import replace
 from unittest import mock
 
@@ -16,9 +17,11 @@ from mono_hdr_plugin.studio import figures
 from mono_hdr_plugin.studio import render as render_module
 from mono_hdr_plugin.studio.commands import ScenesConfig, list_scenes, list_scenes_command
 from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
-from mono_hdr_plugin.studio.render import dynamic_range, render_key, render_scene
+from mono_hdr_plugin.studio.render import dynamic_range, render_key, render_scene, seed_agreement
 from mono_hdr_plugin.studio.scene import STUDIO_EXPOSURES, CameraRig, StudioScene, lamp
-from mono_hdr_plugin.studio.scenes import SCENES
+from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES, SCENES
+
+REAL = {scene.name: scene for scene in BUILTIN_SCENES}
 
 
 class TestRegistry:
@@ -26,16 +29,25 @@ class TestRegistry:
         assert len(SCENES) >= 5 and "demo" in SCENES
         assert scene_names() == list(SCENES)
 
-    @pytest.mark.parametrize("name", sorted(SCENES))
+    @pytest.mark.parametrize("name", sorted(REAL))
     def test_scene_declares_cameras_and_effects(self, name):
-        scene = SCENES[name]
+        scene = REAL[name]
         cameras = scene.cameras()
         assert len(cameras) == 35 and cameras[0].width == scene.width
+        assert scene.width >= 128 and scene.height >= 128
         assert "exposure" in scene.effects and scene.exposures == STUDIO_EXPOSURES
         assert [scene.split(i) for i in range(4)] == ["train", "test", "train", "test"]
 
-    def test_demo_is_small(self):
-        assert SCENES["demo"].width * SCENES["demo"].height <= 96 * 96
+    def test_demo_renders_fastest(self):
+        assert all(REAL["demo"].spp <= scene.spp for scene in BUILTIN_SCENES)
+
+    @pytest.mark.parametrize("spp", [8, 16, 64, 1])
+    def test_spp_must_suit_the_sampler(self, spp):
+        with pytest.raises(ValueError, match="square of a prime"):
+            replace(REAL["demo"], spp=spp)
+
+    def test_default_suite_sees_tiny_variants(self):
+        assert SCENES["demo"].width == 24 and SCENES["demo"].rig.views == 10
 
     def test_unknown_scene(self):
         with pytest.raises(DatasetError, match="unknown scene 'nope'.*mono-hdr scenes"):
@@ -50,10 +62,15 @@ class TestRegistry:
         monkeypatch.setenv("COLUMNS", "200")
         with mock.patch("mono_hdr_plugin.studio.commands.list_scenes", return_value=[
                 {"name": "demo", "resolution": "64x64", "views": 35, "spp": 32, "description": "d",
-                 "dynamic_range": 12345.0, "effects": ("exposure", "crf")}]):
+                 "dynamic_range": 12345.0, "agreement_hdr": 51.234, "agreement_ldr": 47.06,
+                 "effects": ("exposure", "crf")}]):
             list_scenes_command(ScenesConfig())
         out = capsys.readouterr().out
-        assert "demo" in out and "1.2e+04" in out and "exposure, crf" in out
+        assert "demo" in out and "1.2e+04" in out and "exposure, crf" in out and "51.2 / 47.1 dB" in out
+
+    def test_listing_with_render_states_the_agreement(self):
+        row = next(row for row in list_scenes(render=True) if row["name"] == "demo")
+        assert math.isfinite(row["agreement_hdr"]) and row["agreement_ldr"] > 10
 
 
 class TestRenderCache:
@@ -65,7 +82,7 @@ class TestRenderCache:
         assert len(list((studio_cache / "studio").glob("demo-*.npz"))) == 1
 
     def test_key_changes_with_definition(self, tiny_demo):
-        keys = {render_key(tiny_demo), render_key(replace(tiny_demo, spp=8)),
+        keys = {render_key(tiny_demo), render_key(replace(tiny_demo, spp=9)),
                 render_key(replace(tiny_demo, resolution=(24, 20))),
                 render_key(replace(tiny_demo, content=lambda: {**tiny_demo.content(), "extra": lamp((0, 0, 3), 0.1, (1, 1, 1))}))}
         assert len(keys) == 4
@@ -75,6 +92,35 @@ class TestRenderCache:
         assert render.radiance.shape == (10, 24, 24, 3) and np.isfinite(render.radiance).all()
         assert render.hit.mean() > 0.5
         assert dynamic_range(render.radiance) > 1e3  # a bulb in view, even at 4 spp
+
+    def test_two_seeds_per_view_and_their_agreement(self, tiny_demo):
+        """The stored agreement is that of two renders with different seeds: 4 spp agree less
+        than 25 spp."""
+        coarse, fine = render_scene(tiny_demo), render_scene(replace(tiny_demo, spp=25))
+        assert coarse.agreement_hdr.shape == coarse.agreement_ldr.shape == (10,)
+        assert np.isfinite(coarse.agreement_hdr).all()
+        assert fine.agreement_hdr.mean() > coarse.agreement_hdr.mean() + 3  # ~8 dB for 6x the samples
+        assert fine.agreement_ldr.mean() > coarse.agreement_ldr.mean() + 3
+
+
+class TestSeedAgreement:
+    def test_identical_renders_agree_perfectly_whatever_the_sensor_noise(self):
+        noisy = StudioScene(name="n", description="", content=dict, rig=CameraRig(target=(0, 0, 0), radius=1),
+                            effects=("exposure", "noise", "crf", "clip", "quantize"))
+        radiance = np.random.default_rng(0).random((2, 8, 8, 3)).astype(np.float32)
+        hdr, ldr = seed_agreement(radiance, radiance.copy(), noisy)
+        assert np.isinf(hdr).all() and np.isinf(ldr).all()
+
+    def test_known_psnr(self):
+        """A difference of 0.01 on 45 of 48 values of a linear photo: PSNR = 10 log10(1 / (1e-4 * 45 / 48))."""
+        scene = StudioScene(name="n", description="", content=dict, rig=CameraRig(target=(0, 0, 0), radius=1),
+                            effects=("exposure",), exposures=(1.0,))
+        first = np.full((1, 4, 4, 3), 0.5, np.float32)
+        first[0, 0, 0] = 1.0  # the maximum both images share
+        second = first + np.float32(0.01)
+        second[0, 0, 0] = 1.0
+        _, ldr = seed_agreement(first, second, scene)
+        assert ldr[0] == pytest.approx(10 * np.log10(1 / (0.01**2 * 45 / 48)), abs=1e-3)
 
 
 class TestCameraMatchesMitsuba:
@@ -160,6 +206,12 @@ class TestBuiltinScenesFull:
     @pytest.mark.parametrize("name", sorted(SCENES))
     def test_dynamic_range_at_least_1e4(self, name):
         assert dynamic_range(render_scene(SCENES[name]).radiance) >= 1e4
+
+    @pytest.mark.parametrize("name", sorted(SCENES))
+    def test_ground_truth_is_not_the_limit(self, name):
+        """Two renders of every view with different seeds agree to >= 45 dB (mu-law HDR and t3 photo)."""
+        render = render_scene(SCENES[name])
+        assert render.agreement_hdr.min() >= 45.0 and render.agreement_ldr.min() >= 45.0
 
     def test_demo_loads_through_load_scene(self):
         data = load_scene(DataConfig(scene="demo"))

@@ -37,8 +37,8 @@ def voxel_crf(tmp_path_factory, voxel_scene, voxel_backbone_config):
 
 @pytest.fixture(scope="session")
 def demo_voxel_checkpoint(tmp_path_factory):
-    """A voxel-grid checkpoint of the built-in demo scene (64 x 64, 17 test cameras), as the
-    command line writes it."""
+    """A voxel-grid checkpoint of the built-in demo scene (outside slow tests, its tiny variant),
+    as the command line writes it."""
     from mono_hdr_plugin.cli import main  # noqa: PLC0415
 
     out = tmp_path_factory.mktemp("demo-voxel") / "run"

@@ -8,6 +8,8 @@ import torch
 import register_backbone  # noqa: F401 - registers voxel-grid for the command line
 from mono_hdr_plugin.camera_paths import camera_path
 from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.data.io import read_exr, read_image
 from mono_hdr_plugin.render import even_sized, render_exposure_sweep, render_path
 
@@ -62,23 +64,31 @@ def checkpoint(demo_voxel_checkpoint):
     return demo_voxel_checkpoint
 
 
+@pytest.fixture
+def demo():
+    """The demo scene the checkpoint was trained on (outside slow tests, its tiny variant)."""
+    return load_scene(DataConfig(scene="demo"))
+
+
 class TestRenderCommand:
-    def test_path_video(self, checkpoint, tmp_path):
+    def test_path_video(self, checkpoint, demo, tmp_path):
         main(["render", "--checkpoint", str(checkpoint), "--path", "interpolate", "--frames", "6", "--scale", "0.5",
               "--video", str(tmp_path / "glide.mp4"), "--exr-frames", str(tmp_path / "exr"), "--output", "hdr-srgb"])
         frames = video_frames(tmp_path / "glide.mp4")
-        assert len(frames) == 6 and frames[0].shape == (32, 32, 3)
+        half = demo.train[0].camera.width // 2
+        assert len(frames) == 6 and frames[0].shape == (half, half, 3)
         assert len(list((tmp_path / "exr").glob("*.exr"))) == 6
 
-    def test_dataset_path_has_one_frame_per_camera(self, checkpoint, tmp_path):
+    def test_dataset_path_has_one_frame_per_camera(self, checkpoint, demo, tmp_path):
         main(["render", "--checkpoint", str(checkpoint), "--path", "dataset", "--out", str(tmp_path), "--scale", "0.25"])
-        assert len(video_frames(tmp_path / "path_dataset.mp4")) == 17
+        assert len(video_frames(tmp_path / "path_dataset.mp4")) == len({view.view_id for view in demo.test})
 
-    def test_sweep(self, checkpoint, tmp_path):
+    def test_sweep(self, checkpoint, demo, tmp_path):
         main(["render", "--checkpoint", str(checkpoint), "--sweep", "--frames", "5", "--view", "2", "--out", str(tmp_path),
               "--scale", "0.5"])
+        half = demo.train[0].camera.width // 2
         assert len(video_frames(tmp_path / "exposure_sweep.mp4")) == 5
-        assert read_image(tmp_path / "exposure_sweep.png").shape == (32 + 14, 5 * 34 - 2, 3)
+        assert read_image(tmp_path / "exposure_sweep.png").shape == (half + 14, 5 * (half + 2) - 2, 3)
 
     def test_bad_flags_are_named(self, checkpoint):
         with pytest.raises(ValueError, match="--path and --sweep"):

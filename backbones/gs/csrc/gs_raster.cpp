@@ -1,38 +1,45 @@
-// CPU kernels of the 3D Gaussian Splatting rasteriser: projection, tile binning,
-// front-to-back compositing of any number of channels, and their analytic backward passes.
+// CPU kernels of the 3D Gaussian Splatting rasteriser: spherical harmonics, projection, tile
+// binning, front-to-back compositing of any number of channels, and their analytic backward passes.
 //
-// The compositing loops run Gaussian-outer, pixel-inner inside each 16 x 16 tile: a
-// Gaussian's parameters stay in registers while the compiler vectorises the pixel loop,
-// and the per-channel work is one multiply-add per pixel, so 6 channels cost little more
-// than 3. Per pixel, Gaussians are still visited in depth order, so every pixel sees the
-// exact 3DGS rules (alpha clamp 0.99, skip alpha < 1/255, stop before T < 1e-4).
-// The Python twin in backbones/gs/reference.py defines the same semantics in plain torch.
+// Projection culls and compacts: everything after it (SH colours, binning, compositing) works
+// on the V visible Gaussians only, and the backward passes scatter into the N rows again.
+//
+// Compositing runs Gaussian-outer, pixel-inner inside each 16 x 16 tile, 8 pixels at a time:
+// each row of a Gaussian's box is covered by the one or two aligned 8-pixel chunks it touches,
+// a fixed-width loop the compiler turns into vector instructions (a box is typically 3-12
+// pixels wide, too short for a variable-length loop to vectorise). Per pixel, Gaussians are
+// still visited in depth order, so every pixel follows the exact 3DGS rules (alpha clamp 0.99,
+// skip alpha < 1/255, stop before T < 1e-4). The plain-torch twins in backbones/gs/reference.py
+// and backbones/gs/sh.py define the same results.
 
 #include <torch/extension.h>
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <utility>
 #include <vector>
 
 namespace {
 
 constexpr int kTile = 16;
 constexpr int kTilePixels = kTile * kTile;
+constexpr int kChunk = 8;
 constexpr float kAlphaMax = 0.99f;
 constexpr float kAlphaMin = 1.0f / 255.0f;
 constexpr float kTransmittanceMin = 1e-4f;
 constexpr float kDilation = 0.3f;
 constexpr float kQuatNormMin2 = 1e-20f;
+constexpr float kDirectionNormMin = 1e-12f;
 
-// exp(x) for the x <= 0 this rasteriser needs, in a form the compiler vectorises
-// (Cephes range reduction and polynomial, within 2 ulp of expf).
+// exp(x) for the x <= 0 this rasteriser needs, in a form the compiler vectorises on any x86-64
+// (Cephes range reduction and polynomial, within 2 ulp of expf). For t <= 0, truncating t - 0.5
+// rounds to nearest, which needs no floor instruction.
 inline float exp_nonpositive(float x) {
   x = x < -87.0f ? -87.0f : x;
-  const float n = std::floor(x * 1.44269504088896341f + 0.5f);
+  const float n = static_cast<float>(static_cast<int32_t>(x * 1.44269504088896341f - 0.5f));
   const float r = x - n * 0.693359375f + n * 2.12194440e-4f;
   float p = 1.9875691500e-4f;
   p = p * r + 1.3981999507e-3f;
@@ -46,6 +53,162 @@ inline float exp_nonpositive(float x) {
   std::memcpy(&scale, &bits, sizeof(float));
   return p * scale;
 }
+
+void check_cpu_float(const torch::Tensor& t, const char* name) {
+  TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == torch::kFloat32 && t.is_contiguous(), name,
+              " must be a contiguous float32 CPU tensor");
+}
+
+void check_rows(const torch::Tensor& t, const char* name, int64_t rows, int64_t width) {
+  check_cpu_float(t, name);
+  TORCH_CHECK(t.dim() == 2 && t.size(0) == rows && t.size(1) == width, name, " must have shape [", rows, ", ",
+              width, "]");
+}
+
+// ------------------------------------------------------------------------ spherical harmonics
+constexpr float kC0 = 0.28209479177387814f;
+constexpr float kC1 = 0.4886025119029199f;
+constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f, -1.0925484305920792f,
+                          0.5462742152960396f};
+constexpr float kC3[7] = {-0.5900435899266435f, 2.890611442640554f, -0.4570457994644658f, 0.3731763325901154f,
+                          -0.4570457994644658f, 1.445305721320277f, -0.5900435899266435f};
+
+// SH basis values b[16] at unit direction (x, y, z), and with `grad` their partial derivatives
+// db/dx, db/dy, db/dz, in the 3DGS order.
+inline void sh_basis(int degree, float x, float y, float z, float* b, float (*grad)[3]) {
+  b[0] = kC0;
+  if (grad) grad[0][0] = grad[0][1] = grad[0][2] = 0.f;
+  if (degree < 1) return;
+  b[1] = -kC1 * y; b[2] = kC1 * z; b[3] = -kC1 * x;
+  if (grad) {
+    const float g[3][3] = {{0.f, -kC1, 0.f}, {0.f, 0.f, kC1}, {-kC1, 0.f, 0.f}};
+    for (int j = 0; j < 3; ++j)
+      for (int a = 0; a < 3; ++a) grad[1 + j][a] = g[j][a];
+  }
+  if (degree < 2) return;
+  const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+  b[4] = kC2[0] * xy; b[5] = kC2[1] * yz; b[6] = kC2[2] * (2.f * zz - xx - yy);
+  b[7] = kC2[3] * xz; b[8] = kC2[4] * (xx - yy);
+  if (grad) {
+    const float g[5][3] = {{kC2[0] * y, kC2[0] * x, 0.f},
+                           {0.f, kC2[1] * z, kC2[1] * y},
+                           {-2.f * kC2[2] * x, -2.f * kC2[2] * y, 4.f * kC2[2] * z},
+                           {kC2[3] * z, 0.f, kC2[3] * x},
+                           {2.f * kC2[4] * x, -2.f * kC2[4] * y, 0.f}};
+    for (int j = 0; j < 5; ++j)
+      for (int a = 0; a < 3; ++a) grad[4 + j][a] = g[j][a];
+  }
+  if (degree < 3) return;
+  b[9] = kC3[0] * y * (3.f * xx - yy);
+  b[10] = kC3[1] * xy * z;
+  b[11] = kC3[2] * y * (4.f * zz - xx - yy);
+  b[12] = kC3[3] * z * (2.f * zz - 3.f * xx - 3.f * yy);
+  b[13] = kC3[4] * x * (4.f * zz - xx - yy);
+  b[14] = kC3[5] * z * (xx - yy);
+  b[15] = kC3[6] * x * (xx - 3.f * yy);
+  if (grad) {
+    const float g[7][3] = {{kC3[0] * 6.f * xy, kC3[0] * (3.f * xx - 3.f * yy), 0.f},
+                           {kC3[1] * yz, kC3[1] * xz, kC3[1] * xy},
+                           {kC3[2] * -2.f * xy, kC3[2] * (4.f * zz - xx - 3.f * yy), kC3[2] * 8.f * yz},
+                           {kC3[3] * -6.f * xz, kC3[3] * -6.f * yz, kC3[3] * (6.f * zz - 3.f * xx - 3.f * yy)},
+                           {kC3[4] * (4.f * zz - 3.f * xx - yy), kC3[4] * -2.f * xy, kC3[4] * 8.f * xz},
+                           {kC3[5] * 2.f * xz, kC3[5] * -2.f * yz, kC3[5] * (xx - yy)},
+                           {kC3[6] * (3.f * xx - 3.f * yy), kC3[6] * -6.f * xy, 0.f}};
+    for (int j = 0; j < 7; ++j)
+      for (int a = 0; a < 3; ++a) grad[9 + j][a] = g[j][a];
+  }
+}
+
+// Unit direction from the camera centre to a mean, with the norm clamped as view_directions does.
+inline float view_direction(const float* mean, const float* center, float* dir) {
+  float offset[3], norm2 = 0.f;
+  for (int a = 0; a < 3; ++a) {
+    offset[a] = mean[a] - center[a];
+    norm2 += offset[a] * offset[a];
+  }
+  const float norm = std::max(std::sqrt(norm2), kDirectionNormMin);
+  for (int a = 0; a < 3; ++a) dir[a] = offset[a] / norm;
+  return std::sqrt(norm2);
+}
+
+}  // namespace
+
+// Colours [V, 3] (without 3DGS's +0.5) of the Gaussians `index` [V] seen from `center` [3].
+// sh_dc [N, 1, 3] and sh_rest [N, K - 1, 3] are the coefficients; `degree` the active degree.
+torch::Tensor sh_forward(torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor means, torch::Tensor index,
+                         torch::Tensor center, int64_t degree) {
+  check_cpu_float(sh_dc, "sh_dc");
+  check_cpu_float(sh_rest, "sh_rest");
+  check_cpu_float(means, "means");
+  check_cpu_float(center, "center");
+  TORCH_CHECK(index.scalar_type() == torch::kInt64 && index.is_contiguous(), "index must be contiguous int64");
+  const int64_t rest = sh_rest.size(1), v_count = index.size(0);
+  TORCH_CHECK((degree + 1) * (degree + 1) <= rest + 1, "SH degree ", degree, " needs ", (degree + 1) * (degree + 1),
+              " coefficients per channel, got ", rest + 1);
+  const int bases = (int)((degree + 1) * (degree + 1));
+  auto colors = torch::empty({v_count, 3}, sh_dc.options());
+  const float *dc = sh_dc.data_ptr<float>(), *rs = sh_rest.data_ptr<float>(), *m = means.data_ptr<float>();
+  const float* c = center.data_ptr<float>();
+  const int64_t* idx = index.data_ptr<int64_t>();
+  float* out = colors.data_ptr<float>();
+#pragma omp parallel for schedule(static)
+  for (int64_t v = 0; v < v_count; ++v) {
+    const int64_t g = idx[v];
+    float dir[3], b[16];
+    view_direction(m + 3 * g, c, dir);
+    sh_basis((int)degree, dir[0], dir[1], dir[2], b, nullptr);
+    for (int ch = 0; ch < 3; ++ch) {
+      float sum = b[0] * dc[3 * g + ch];
+      for (int j = 1; j < bases; ++j) sum += b[j] * rs[(g * rest + j - 1) * 3 + ch];
+      out[3 * v + ch] = sum;
+    }
+  }
+  return colors;
+}
+
+// Gradients of sh_forward with respect to sh_dc, sh_rest and means (through the view direction).
+std::vector<torch::Tensor> sh_backward(torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor means,
+                                       torch::Tensor index, torch::Tensor center, int64_t degree,
+                                       torch::Tensor v_colors) {
+  check_cpu_float(v_colors, "v_colors");
+  const int64_t rest = sh_rest.size(1), v_count = index.size(0);
+  const int bases = (int)((degree + 1) * (degree + 1));
+  auto v_dc = torch::zeros_like(sh_dc);
+  auto v_rest = torch::zeros_like(sh_rest);
+  auto v_means = torch::zeros_like(means);
+  const float *dc = sh_dc.data_ptr<float>(), *rs = sh_rest.data_ptr<float>(), *m = means.data_ptr<float>();
+  const float *c = center.data_ptr<float>(), *vc = v_colors.data_ptr<float>();
+  const int64_t* idx = index.data_ptr<int64_t>();
+  float *gdc = v_dc.data_ptr<float>(), *grs = v_rest.data_ptr<float>(), *gm = v_means.data_ptr<float>();
+#pragma omp parallel for schedule(static)
+  for (int64_t v = 0; v < v_count; ++v) {
+    const int64_t g = idx[v];
+    float dir[3], b[16], db[16][3];
+    const float norm = view_direction(m + 3 * g, c, dir);
+    sh_basis((int)degree, dir[0], dir[1], dir[2], b, db);
+    float v_dir[3] = {0.f, 0.f, 0.f};
+    for (int ch = 0; ch < 3; ++ch) {
+      const float gc = vc[3 * v + ch];
+      gdc[3 * g + ch] = b[0] * gc;
+      for (int j = 1; j < bases; ++j) {
+        const float coeff = rs[(g * rest + j - 1) * 3 + ch];
+        grs[(g * rest + j - 1) * 3 + ch] = b[j] * gc;
+        for (int a = 0; a < 3; ++a) v_dir[a] += db[j][a] * coeff * gc;
+      }
+    }
+    // dir = offset / max(|offset|, eps): project out the radial part when the norm is not clamped
+    if (norm > kDirectionNormMin) {
+      const float radial = v_dir[0] * dir[0] + v_dir[1] * dir[1] + v_dir[2] * dir[2];
+      for (int a = 0; a < 3; ++a) gm[3 * g + a] = (v_dir[a] - radial * dir[a]) / norm;
+    } else {
+      for (int a = 0; a < 3; ++a) gm[3 * g + a] = v_dir[a] / kDirectionNormMin;
+    }
+  }
+  return {v_dc, v_rest, v_means};
+}
+
+// ----------------------------------------------------------------------------- projection
+namespace {
 
 struct Intrinsics {
   float fx, fy, cx, cy;
@@ -69,8 +232,8 @@ struct Projected {
   bool visible;
 };
 
-inline void project_one(const float* m, const float* q, const float* s, const float* view,
-                        const Intrinsics& k, Projected& p) {
+inline void project_one(const float* m, const float* q, const float* s, const float* view, const Intrinsics& k,
+                        Projected& p) {
   p.visible = false;
   for (int i = 0; i < 3; ++i)
     p.t[i] = view[4 * i] * m[0] + view[4 * i + 1] * m[1] + view[4 * i + 2] * m[2] + view[4 * i + 3];
@@ -131,37 +294,34 @@ inline void project_one(const float* m, const float* q, const float* s, const fl
   p.visible = std::isfinite(p.mean2d[0]) && std::isfinite(p.mean2d[1]);
 }
 
-void check_cpu_float(const torch::Tensor& t, const char* name, int64_t last_dim) {
-  TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == torch::kFloat32 && t.is_contiguous(),
-              name, " must be a contiguous float32 CPU tensor");
-  if (last_dim > 0) TORCH_CHECK(t.dim() == 2 && t.size(1) == last_dim, name, " must have shape [N, ", last_dim, "]");
+Intrinsics make_intrinsics(double fx, double fy, double cx, double cy, int64_t width, int64_t height,
+                           double near_plane) {
+  return Intrinsics{(float)fx, (float)fy, (float)cx, (float)cy, (int)width, (int)height, (float)near_plane};
 }
 
 }  // namespace
 
-// Returns means2d [N,2], conics [N,3], depths [N], radii [N] (int32, 3 sigma, 0 when culled)
-// and boxes [N,4] (int32 x0, y0, x1, y1, end-exclusive: the pixels where alpha can reach 1/255).
+// Projects all N Gaussians and keeps the V visible ones. Returns index [V] (int64, ascending),
+// radii [N] (int32, ceil of 3 sigma, 0 when culled), and for the visible ones means2d [V,2],
+// conics [V,3], depths [V] and boxes [V,4] (int32 x0, y0, x1, y1, end-exclusive: the pixels
+// where alpha can reach 1/255).
 std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                           torch::Tensor opacities, torch::Tensor viewmat, double fx,
-                                           double fy, double cx, double cy, int64_t width, int64_t height,
-                                           double near_plane) {
-  check_cpu_float(means, "means", 3);
-  check_cpu_float(quats, "quats", 4);
-  check_cpu_float(scales, "scales", 3);
-  check_cpu_float(opacities, "opacities", 0);
-  check_cpu_float(viewmat, "viewmat", 0);
+                                           torch::Tensor opacities, torch::Tensor viewmat, double fx, double fy,
+                                           double cx, double cy, int64_t width, int64_t height, double near_plane) {
   const int64_t n = means.size(0);
-  const Intrinsics k{(float)fx, (float)fy, (float)cx, (float)cy, (int)width, (int)height, (float)near_plane};
+  check_rows(means, "means", n, 3);
+  check_rows(quats, "quats", n, 4);
+  check_rows(scales, "scales", n, 3);
+  check_cpu_float(opacities, "opacities");
+  check_cpu_float(viewmat, "viewmat");
+  const Intrinsics k = make_intrinsics(fx, fy, cx, cy, width, height, near_plane);
   auto opts = means.options();
-  auto means2d = torch::zeros({n, 2}, opts);
-  auto conics = torch::zeros({n, 3}, opts);
-  auto depths = torch::zeros({n}, opts);
   auto radii = torch::zeros({n}, opts.dtype(torch::kInt32));
-  auto boxes = torch::zeros({n, 4}, opts.dtype(torch::kInt32));
+  std::vector<float> all(8 * (size_t)n);  // mean x, y, conic a, b, c, depth, box packed below
+  std::vector<int32_t> all_boxes(4 * (size_t)n);
   const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
   const float *o = opacities.data_ptr<float>(), *view = viewmat.data_ptr<float>();
-  float *out_m = means2d.data_ptr<float>(), *out_c = conics.data_ptr<float>(), *out_d = depths.data_ptr<float>();
-  int32_t *out_r = radii.data_ptr<int32_t>(), *out_b = boxes.data_ptr<int32_t>();
+  int32_t* out_r = radii.data_ptr<int32_t>();
 
 #pragma omp parallel for schedule(static)
   for (int64_t g = 0; g < n; ++g) {
@@ -180,47 +340,69 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
     const int x0 = (int)std::min<float>(width, std::max(0.f, bx0)), x1 = (int)std::min<float>(width, std::max(0.f, bx1));
     const int y0 = (int)std::min<float>(height, std::max(0.f, by0)), y1 = (int)std::min<float>(height, std::max(0.f, by1));
     if (x0 >= x1 || y0 >= y1 || !std::isfinite(sigma)) continue;
-    out_m[2 * g] = p.mean2d[0];
-    out_m[2 * g + 1] = p.mean2d[1];
-    for (int i = 0; i < 3; ++i) out_c[3 * g + i] = p.conic[i];
-    out_d[g] = p.t[2];
+    float* row = all.data() + 8 * g;
+    row[0] = p.mean2d[0]; row[1] = p.mean2d[1];
+    row[2] = p.conic[0]; row[3] = p.conic[1]; row[4] = p.conic[2];
+    row[5] = p.t[2];
     out_r[g] = (int32_t)std::min(1e9f, std::ceil(3.0f * sigma));
-    out_b[4 * g] = x0; out_b[4 * g + 1] = y0; out_b[4 * g + 2] = x1; out_b[4 * g + 3] = y1;
+    int32_t* b = all_boxes.data() + 4 * g;
+    b[0] = x0; b[1] = y0; b[2] = x1; b[3] = y1;
   }
-  return {means2d, conics, depths, radii, boxes};
+  int64_t v_count = 0;
+  for (int64_t g = 0; g < n; ++g) v_count += out_r[g] > 0;
+  auto index = torch::empty({v_count}, opts.dtype(torch::kInt64));
+  auto means2d = torch::empty({v_count, 2}, opts);
+  auto conics = torch::empty({v_count, 3}, opts);
+  auto depths = torch::empty({v_count}, opts);
+  auto boxes = torch::empty({v_count, 4}, opts.dtype(torch::kInt32));
+  int64_t* idx = index.data_ptr<int64_t>();
+  float *out_m = means2d.data_ptr<float>(), *out_c = conics.data_ptr<float>(), *out_d = depths.data_ptr<float>();
+  int32_t* out_b = boxes.data_ptr<int32_t>();
+  for (int64_t g = 0, v = 0; g < n; ++g) {
+    if (out_r[g] <= 0) continue;
+    const float* row = all.data() + 8 * g;
+    idx[v] = g;
+    out_m[2 * v] = row[0]; out_m[2 * v + 1] = row[1];
+    out_c[3 * v] = row[2]; out_c[3 * v + 1] = row[3]; out_c[3 * v + 2] = row[4];
+    out_d[v] = row[5];
+    std::memcpy(out_b + 4 * v, all_boxes.data() + 4 * g, 4 * sizeof(int32_t));
+    ++v;
+  }
+  return {index, radii, means2d, conics, depths, boxes};
 }
 
-// Gradients of project_forward's means2d, conics and depths with respect to means, quats, scales.
+// Gradients of project_forward's means2d, conics and depths [V, ...] with respect to means,
+// quats and scales [N, ...] (zero for culled Gaussians).
 std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                            torch::Tensor viewmat, torch::Tensor radii, double fx, double fy,
+                                            torch::Tensor viewmat, torch::Tensor index, double fx, double fy,
                                             double cx, double cy, int64_t width, int64_t height,
                                             double near_plane, torch::Tensor v_means2d, torch::Tensor v_conics,
                                             torch::Tensor v_depths) {
-  const int64_t n = means.size(0);
-  const Intrinsics k{(float)fx, (float)fy, (float)cx, (float)cy, (int)width, (int)height, (float)near_plane};
+  const int64_t v_count = index.size(0);
+  const Intrinsics k = make_intrinsics(fx, fy, cx, cy, width, height, near_plane);
   auto v_means = torch::zeros_like(means);
   auto v_quats = torch::zeros_like(quats);
   auto v_scales = torch::zeros_like(scales);
   const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
   const float* view = viewmat.data_ptr<float>();
-  const int32_t* r = radii.data_ptr<int32_t>();
+  const int64_t* idx = index.data_ptr<int64_t>();
   const float *vm2 = v_means2d.data_ptr<float>(), *vc = v_conics.data_ptr<float>(), *vd = v_depths.data_ptr<float>();
   float *gm = v_means.data_ptr<float>(), *gq = v_quats.data_ptr<float>(), *gs = v_scales.data_ptr<float>();
 
 #pragma omp parallel for schedule(static)
-  for (int64_t g = 0; g < n; ++g) {
-    if (r[g] <= 0) continue;
+  for (int64_t v = 0; v < v_count; ++v) {
+    const int64_t g = idx[v];
     Projected p;
     project_one(m + 3 * g, q + 4 * g, s + 3 * g, view, k, p);
     const float tz = p.t[2];
     float vt[3];
-    vt[0] = k.fx / tz * vm2[2 * g];
-    vt[1] = k.fy / tz * vm2[2 * g + 1];
-    vt[2] = -(k.fx * p.t[0] * vm2[2 * g] + k.fy * p.t[1] * vm2[2 * g + 1]) / (tz * tz) + vd[g];
+    vt[0] = k.fx / tz * vm2[2 * v];
+    vt[1] = k.fy / tz * vm2[2 * v + 1];
+    vt[2] = -(k.fx * p.t[0] * vm2[2 * v] + k.fy * p.t[1] * vm2[2 * v + 1]) / (tz * tz) + vd[v];
 
     // conic = cov^-1: dL/dcov = -A G A, with G the symmetric gradient of the conic matrix
     const float A[4] = {p.conic[0], p.conic[1], p.conic[1], p.conic[2]};
-    const float G[4] = {vc[3 * g], 0.5f * vc[3 * g + 1], 0.5f * vc[3 * g + 1], vc[3 * g + 2]};
+    const float G[4] = {vc[3 * v], 0.5f * vc[3 * v + 1], 0.5f * vc[3 * v + 1], vc[3 * v + 2]};
     float AG[4], V2[4];
     for (int i = 0; i < 2; ++i)
       for (int j = 0; j < 2; ++j) AG[2 * i + j] = A[2 * i] * G[j] + A[2 * i + 1] * G[2 + j];
@@ -285,14 +467,39 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
   return {v_means, v_quats, v_scales};
 }
 
-// Tile lists: tile_offsets [T+1] and gaussian ids [M], each tile's ids sorted front to back
-// (ties by id). Tiles are row-major, ceil(width/16) per row.
+// ------------------------------------------------------------------------------- binning
+// Tile lists: tile_offsets [T+1] and ids [M] (rows of boxes), each tile's ids front to back,
+// ties by id. One stable sort of all depths, then every tile's list is filled in that order.
+// Tiles are row-major, ceil(width/16) per row.
 std::vector<torch::Tensor> bin_tiles(torch::Tensor boxes, torch::Tensor depths, int64_t width, int64_t height) {
   const int64_t n = boxes.size(0);
   const int tiles_x = (int)((width + kTile - 1) / kTile), tiles_y = (int)((height + kTile - 1) / kTile);
   const int n_tiles = tiles_x * tiles_y;
   const int32_t* b = boxes.data_ptr<int32_t>();
   const float* d = depths.data_ptr<float>();
+
+  // Stable LSD radix sort on the float bits, mapped so that unsigned order is float order.
+  std::vector<uint32_t> keys(n), keys_tmp(n);
+  std::vector<int32_t> order(n), order_tmp(n);
+  for (int64_t g = 0; g < n; ++g) {
+    uint32_t bits;
+    std::memcpy(&bits, d + g, sizeof(float));
+    keys[g] = (bits & 0x80000000u) ? ~bits : bits | 0x80000000u;
+    order[g] = (int32_t)g;
+  }
+  for (int shift = 0; shift < 32; shift += 11) {
+    std::array<int64_t, 2049> count{};
+    for (int64_t i = 0; i < n; ++i) ++count[((keys[i] >> shift) & 2047u) + 1];
+    for (int i = 0; i < 2048; ++i) count[i + 1] += count[i];
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t to = count[(keys[i] >> shift) & 2047u]++;
+      keys_tmp[to] = keys[i];
+      order_tmp[to] = order[i];
+    }
+    keys.swap(keys_tmp);
+    order.swap(order_tmp);
+  }
+
   auto offsets = torch::zeros({n_tiles + 1}, boxes.options());
   int32_t* off = offsets.data_ptr<int32_t>();
   for (int64_t g = 0; g < n; ++g) {
@@ -305,26 +512,17 @@ std::vector<torch::Tensor> bin_tiles(torch::Tensor boxes, torch::Tensor depths, 
   auto ids = torch::empty({(int64_t)off[n_tiles]}, boxes.options());
   int32_t* id = ids.data_ptr<int32_t>();
   std::vector<int32_t> cursor(off, off + n_tiles);
-  for (int64_t g = 0; g < n; ++g) {
+  for (int64_t i = 0; i < n; ++i) {
+    const int32_t g = order[i];
     const int32_t* bg = b + 4 * g;
     if (bg[0] >= bg[2] || bg[1] >= bg[3]) continue;
     for (int ty = bg[1] / kTile; ty < (bg[3] + kTile - 1) / kTile; ++ty)
-      for (int tx = bg[0] / kTile; tx < (bg[2] + kTile - 1) / kTile; ++tx) id[cursor[ty * tiles_x + tx]++] = (int32_t)g;
-  }
-#pragma omp parallel
-  {
-    std::vector<std::pair<float, int32_t>> keys;
-#pragma omp for schedule(dynamic, 4)
-    for (int t = 0; t < n_tiles; ++t) {
-      keys.clear();
-      for (int i = off[t]; i < off[t + 1]; ++i) keys.emplace_back(d[id[i]], id[i]);
-      std::sort(keys.begin(), keys.end());
-      for (int i = off[t]; i < off[t + 1]; ++i) id[i] = keys[i - off[t]].second;
-    }
+      for (int tx = bg[0] / kTile; tx < (bg[2] + kTile - 1) / kTile; ++tx) id[cursor[ty * tiles_x + tx]++] = g;
   }
   return {offsets, ids};
 }
 
+// ---------------------------------------------------------------------------- compositing
 namespace {
 
 struct TileGeometry {
@@ -349,42 +547,73 @@ inline bool box_in_tile(const int32_t* box, const TileGeometry& t, int& lx0, int
   return lx0 < lx1 && ly0 < ly1;
 }
 
-}  // namespace
+// Eight pixels at a time as GCC vector types: AVX2 registers where the build enables them, pairs
+// of SSE registers otherwise. Masks are int lanes of -1 (true) or 0.
+typedef float f8 __attribute__((vector_size(32)));
+typedef int32_t i8 __attribute__((vector_size(32)));
 
-// Composites values [N,C] front to back. Returns image [H,W,C], transmittance [H,W] and the
-// index (into tile_ids) of each pixel's last contributing Gaussian [H,W] (int32, -1: none).
-std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
-                                             torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
-                                             torch::Tensor tile_ids, int64_t width, int64_t height) {
-  check_cpu_float(means2d, "means2d", 2);
-  check_cpu_float(conics, "conics", 3);
-  check_cpu_float(values, "values", 0);
-  const int C = (int)values.size(1);
+inline f8 splat(float x) { return f8{} + x; }
+inline i8 splat_int(int32_t x) { return i8{} + x; }
+inline f8 vmin(f8 a, f8 b) { return a < b ? a : b; }
+inline f8 select(i8 mask, f8 yes, f8 no) { return mask ? yes : no; }
+inline f8 load8(const float* p) { f8 v; std::memcpy(&v, p, sizeof(v)); return v; }
+inline void store8(float* p, f8 v) { std::memcpy(p, &v, sizeof(v)); }
+inline i8 load8(const int32_t* p) { i8 v; std::memcpy(&v, p, sizeof(v)); return v; }
+inline void store8(int32_t* p, i8 v) { std::memcpy(p, &v, sizeof(v)); }
+inline float sum8(f8 v) { return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7])); }
+inline int32_t count8(i8 mask) { i8 ones = mask & 1; return ones[0] + ones[1] + ones[2] + ones[3] + ones[4] + ones[5] + ones[6] + ones[7]; }
+inline bool any8(i8 mask) { i8 a = mask | __builtin_shufflevector(mask, mask, 4, 5, 6, 7, 0, 1, 2, 3); return (a[0] | a[1] | a[2] | a[3]) != 0; }
+
+// exp_nonpositive, eight lanes at once.
+inline f8 exp8_nonpositive(f8 x) {
+  x = select(x < -87.0f, splat(-87.0f), x);
+  const f8 n = __builtin_convertvector(__builtin_convertvector(x * 1.44269504088896341f - 0.5f, i8), f8);
+  const f8 r = x - n * 0.693359375f + n * 2.12194440e-4f;
+  f8 p = splat(1.9875691500e-4f);
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  p = p * r * r + r + 1.0f;
+  const i8 bits = (__builtin_convertvector(n, i8) + 127) << 23;
+  return p * (f8)bits;
+}
+
+const f8 kLaneOffsets = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f};  // pixel centres of a chunk
+const i8 kLanes = {0, 1, 2, 3, 4, 5, 6, 7};
+
+// Channels known at compile time let the channel loops unroll inside the pixel loop; 0 = any.
+template <int kChannels>
+struct Channels {
+  static int count(int) { return kChannels; }
+};
+template <>
+struct Channels<0> {
+  static int count(int c) { return c; }
+};
+
+template <int kChannels>
+void rasterize_forward_tiles(const float* mu, const float* con, const float* op, const float* val,
+                             const int32_t* box, const int32_t* off, const int32_t* ids, int64_t width,
+                             int64_t height, int channels, float* img, float* trans, int32_t* last_out) {
+  const int C = Channels<kChannels>::count(channels);
   const int tiles_x = (int)((width + kTile - 1) / kTile), tiles_y = (int)((height + kTile - 1) / kTile);
-  auto opts = values.options();
-  auto image = torch::zeros({height, width, C}, opts);
-  auto transmittance = torch::ones({height, width}, opts);
-  auto last = torch::full({height, width}, -1, opts.dtype(torch::kInt32));
-  const float *mu = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *op = opacities.data_ptr<float>();
-  const float* val = values.data_ptr<float>();
-  const int32_t *box = boxes.data_ptr<int32_t>(), *off = tile_offsets.data_ptr<int32_t>(), *ids = tile_ids.data_ptr<int32_t>();
-  float *img = image.data_ptr<float>(), *trans = transmittance.data_ptr<float>();
-  int32_t* last_out = last.data_ptr<int32_t>();
-
 #pragma omp parallel
   {
-    std::vector<float> acc((size_t)C * kTilePixels);
-    alignas(64) float T[kTilePixels], live[kTilePixels], weight[kTilePixels];
-    alignas(64) int32_t last_idx[kTilePixels];
+    std::vector<float> acc_buffer((size_t)C * kTilePixels);
+    float* acc = acc_buffer.data();
+    alignas(64) float T[kTilePixels];
+    alignas(64) int32_t done[kTilePixels], last_idx[kTilePixels];
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < tiles_x * tiles_y; ++tile) {
       const TileGeometry tg = tile_geometry(tile, tiles_x, width, height);
-      std::fill(acc.begin(), acc.end(), 0.f);
+      std::fill(acc, acc + (size_t)C * kTilePixels, 0.f);
       int n_live = 0;
       for (int p = 0; p < kTilePixels; ++p) {
         const bool inside = (p % kTile) < tg.width && (p / kTile) < tg.height;
         T[p] = 1.f;
-        live[p] = inside ? 1.f : 0.f;
+        done[p] = inside ? 0 : -1;
         last_idx[p] = -1;
         n_live += inside;
       }
@@ -394,36 +623,28 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tenso
         if (!box_in_tile(box + 4 * g, tg, lx0, lx1, ly0, ly1)) continue;
         const float mx = mu[2 * g], my = mu[2 * g + 1];
         const float a = con[3 * g], b = con[3 * g + 1], c = con[3 * g + 2], o = op[g];
-        int n_stopped = 0;
+        const float* vg = val + (size_t)g * C;
         for (int ly = ly0; ly < ly1; ++ly) {
           const float dy = my - (tg.y0 + ly + 0.5f);
-          const int row = ly * kTile;
-#pragma omp simd reduction(+ : n_stopped)
-          for (int lx = lx0; lx < lx1; ++lx) {
-            const int p = row + lx;
-            const float dx = mx - (tg.x0 + lx + 0.5f);
-            const float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
-            const float alpha = std::min(kAlphaMax, o * exp_nonpositive(std::min(power, 0.f)));
-            const bool valid = live[p] > 0.f && power <= 0.f && alpha >= kAlphaMin;
-            const float next_T = T[p] * (1.f - alpha);
-            const bool stop = valid && next_T < kTransmittanceMin;
-            const bool contributes = valid && !stop;
-            weight[p] = contributes ? alpha * T[p] : 0.f;
-            T[p] = contributes ? next_T : T[p];
-            live[p] = stop ? 0.f : live[p];
-            last_idx[p] = contributes ? k : last_idx[p];
-            n_stopped += stop ? 1 : 0;
-          }
-        }
-        n_live -= n_stopped;
-        const float* vg = val + (size_t)g * C;
-        for (int ch = 0; ch < C; ++ch) {
-          const float v = vg[ch];
-          float* acc_c = acc.data() + (size_t)ch * kTilePixels;
-          for (int ly = ly0; ly < ly1; ++ly) {
-            const int row = ly * kTile;
-#pragma omp simd
-            for (int lx = lx0; lx < lx1; ++lx) acc_c[row + lx] += weight[row + lx] * v;
+          for (int cx0 = lx0 & ~(kChunk - 1); cx0 < lx1; cx0 += kChunk) {
+            const int p = ly * kTile + cx0;
+            const f8 dx = splat(mx - (float)(tg.x0 + cx0)) - kLaneOffsets;
+            const f8 power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
+            const f8 alpha = vmin(splat(kAlphaMax), o * exp8_nonpositive(vmin(power, splat(0.f))));
+            const f8 T_old = load8(T + p);
+            const i8 done_old = load8(done + p);
+            const i8 valid = (kLanes >= lx0 - cx0) & (kLanes < lx1 - cx0) & (done_old == 0) & (power <= 0.f) &
+                             (alpha >= kAlphaMin);
+            if (!any8(valid)) continue;
+            const f8 next_T = T_old * (1.f - alpha);
+            const i8 stop = valid & (next_T < kTransmittanceMin);
+            const i8 contributes = valid & ~stop;
+            const f8 weight = select(contributes, alpha * T_old, splat(0.f));
+            for (int ch = 0; ch < C; ++ch) store8(acc + ch * kTilePixels + p, load8(acc + ch * kTilePixels + p) + weight * vg[ch]);
+            store8(T + p, select(contributes, next_T, T_old));
+            store8(done + p, done_old | stop);
+            store8(last_idx + p, contributes ? splat_int(k) : load8(last_idx + p));
+            n_live -= count8(stop);
           }
         }
       }
@@ -431,43 +652,31 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tenso
         for (int lx = 0; lx < tg.width; ++lx) {
           const int p = ly * kTile + lx;
           const int64_t pix = (int64_t)(tg.y0 + ly) * width + tg.x0 + lx;
-          for (int ch = 0; ch < C; ++ch) img[pix * C + ch] = acc[(size_t)ch * kTilePixels + p];
+          for (int ch = 0; ch < C; ++ch) img[pix * C + ch] = acc[ch * kTilePixels + p];
           trans[pix] = T[p];
           last_out[pix] = last_idx[p];
         }
     }
   }
-  return {image, transmittance, last};
 }
 
-// Backward of rasterize_forward for the image and alpha = 1 - transmittance. Returns
-// v_means2d [N,2], v_conics [N,3], v_opacities [N], v_values [N,C].
-std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
-                                              torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
-                                              torch::Tensor tile_ids, torch::Tensor transmittance,
-                                              torch::Tensor last, torch::Tensor v_image, torch::Tensor v_alpha) {
-  const int64_t n = means2d.size(0), height = transmittance.size(0), width = transmittance.size(1);
-  const int C = (int)values.size(1);
+template <int kChannels>
+void rasterize_backward_tiles(const float* mu, const float* con, const float* op, const float* val,
+                              const int32_t* box, const int32_t* off, const int32_t* ids, const float* trans,
+                              const int32_t* last_in, const float* gimg, const float* galpha, int64_t width,
+                              int64_t height, int channels, int64_t n, float* grads, int n_threads) {
+  const int C = Channels<kChannels>::count(channels);
   const int stride = 6 + C;  // per Gaussian: mean x, y, conic a, b, c, opacity, values
   const int tiles_x = (int)((width + kTile - 1) / kTile), tiles_y = (int)((height + kTile - 1) / kTile);
-  const float *mu = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *op = opacities.data_ptr<float>();
-  const float* val = values.data_ptr<float>();
-  const int32_t *box = boxes.data_ptr<int32_t>(), *off = tile_offsets.data_ptr<int32_t>(), *ids = tile_ids.data_ptr<int32_t>();
-  const float *trans = transmittance.data_ptr<float>(), *gimg = v_image.data_ptr<float>(), *galpha = v_alpha.data_ptr<float>();
-  const int32_t* last_in = last.data_ptr<int32_t>();
-  const int n_threads = omp_get_max_threads();
-  // Tiles run in parallel and share Gaussians: each thread sums into its own buffer.
-  std::vector<float> grads((size_t)n_threads * n * stride, 0.f);
-
-#pragma omp parallel
+#pragma omp parallel num_threads(n_threads)
   {
-    float* my_grads = grads.data() + (size_t)omp_get_thread_num() * n * stride;
-    std::vector<float> v_pix((size_t)C * kTilePixels), behind((size_t)C * kTilePixels);
-    alignas(64) float T[kTilePixels], T_final_over[kTilePixels], v_alpha_pix[kTilePixels];
-    alignas(64) float weight[kTilePixels], inv_one_minus[kTilePixels], v_alpha_g[kTilePixels], raw[kTilePixels];
-    alignas(64) float gauss[kTilePixels], mask[kTilePixels];
+    float* my_grads = grads + (size_t)omp_get_thread_num() * n * stride;
+    std::vector<float> pixel_buffer(2 * (size_t)C * kTilePixels);
+    float* v_pix = pixel_buffer.data();
+    float* behind = v_pix + (size_t)C * kTilePixels;
+    alignas(64) float T[kTilePixels], T_final[kTilePixels], v_alpha_pix[kTilePixels];
     alignas(64) int32_t last_idx[kTilePixels];
-    std::vector<float> v_val(C);
+    std::vector<f8> s_val(C);
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < tiles_x * tiles_y; ++tile) {
       const TileGeometry tg = tile_geometry(tile, tiles_x, width, height);
@@ -477,13 +686,13 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tens
         const bool inside = lx < tg.width && ly < tg.height;
         const int64_t pix = (int64_t)(tg.y0 + ly) * width + tg.x0 + lx;
         T[p] = inside ? trans[pix] : 1.f;
-        T_final_over[p] = T[p];
+        T_final[p] = T[p];
         last_idx[p] = inside ? last_in[pix] : -1;
         v_alpha_pix[p] = inside ? galpha[pix] : 0.f;
         max_last = std::max(max_last, last_idx[p]);
         for (int ch = 0; ch < C; ++ch) {
-          v_pix[(size_t)ch * kTilePixels + p] = inside ? gimg[pix * C + ch] : 0.f;
-          behind[(size_t)ch * kTilePixels + p] = 0.f;
+          v_pix[ch * kTilePixels + p] = inside ? gimg[pix * C + ch] : 0.f;
+          behind[ch * kTilePixels + p] = 0.f;
         }
       }
       for (int k = max_last; k >= off[tile]; --k) {
@@ -492,76 +701,125 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tens
         if (!box_in_tile(box + 4 * g, tg, lx0, lx1, ly0, ly1)) continue;
         const float mx = mu[2 * g], my = mu[2 * g + 1];
         const float a = con[3 * g], b = con[3 * g + 1], c = con[3 * g + 2], o = op[g];
-        // Pass 1: which pixels this Gaussian reached, with what weight; step T back past it.
-        for (int ly = ly0; ly < ly1; ++ly) {
-          const float dy = my - (tg.y0 + ly + 0.5f);
-          const int row = ly * kTile;
-#pragma omp simd
-          for (int lx = lx0; lx < lx1; ++lx) {
-            const int p = row + lx;
-            const float dx = mx - (tg.x0 + lx + 0.5f);
-            const float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
-            const float gval = exp_nonpositive(std::min(power, 0.f));
-            const float raw_alpha = o * gval;
-            const float alpha = std::min(kAlphaMax, raw_alpha);
-            const bool contributes = k <= last_idx[p] && power <= 0.f && alpha >= kAlphaMin;
-            const float inv = 1.f / (1.f - alpha);
-            const float T_before = contributes ? T[p] * inv : T[p];
-            T[p] = T_before;
-            weight[p] = contributes ? alpha * T_before : 0.f;
-            mask[p] = contributes ? 1.f : 0.f;
-            inv_one_minus[p] = inv;
-            gauss[p] = gval;
-            raw[p] = raw_alpha;
-            // d alpha_image / d alpha_k = T_final / (1 - alpha_k)
-            v_alpha_g[p] = contributes ? v_alpha_pix[p] * T_final_over[p] * inv : 0.f;
-          }
-        }
-        // Pass 2, per channel: value gradient and d pixel / d alpha.
         const float* vg = val + (size_t)g * C;
-        for (int ch = 0; ch < C; ++ch) {
-          const float v = vg[ch];
-          const float* vp = v_pix.data() + (size_t)ch * kTilePixels;
-          float* bh = behind.data() + (size_t)ch * kTilePixels;
-          float v_value = 0.f;
-          for (int ly = ly0; ly < ly1; ++ly) {
-            const int row = ly * kTile;
-#pragma omp simd reduction(+ : v_value)
-            for (int lx = lx0; lx < lx1; ++lx) {
-              const int p = row + lx;
-              v_value += weight[p] * vp[p];
-              v_alpha_g[p] += mask[p] * (v * T[p] - bh[p] * inv_one_minus[p]) * vp[p];
-              bh[p] += weight[p] * v;
-            }
-          }
-          v_val[ch] = v_value;
-        }
-        // Pass 3: through alpha = min(0.99, opacity * exp(power)) to the 2D parameters.
-        float v_mx = 0.f, v_my = 0.f, v_a = 0.f, v_b = 0.f, v_c = 0.f, v_o = 0.f;
+        f8 s_mx{}, s_my{}, s_a{}, s_b{}, s_c{}, s_o{};
+        for (int ch = 0; ch < C; ++ch) s_val[ch] = f8{};
+        bool touched = false;
         for (int ly = ly0; ly < ly1; ++ly) {
           const float dy = my - (tg.y0 + ly + 0.5f);
-          const int row = ly * kTile;
-#pragma omp simd reduction(+ : v_mx, v_my, v_a, v_b, v_c, v_o)
-          for (int lx = lx0; lx < lx1; ++lx) {
-            const int p = row + lx;
-            const float dx = mx - (tg.x0 + lx + 0.5f);
-            const float v_raw = raw[p] <= kAlphaMax ? v_alpha_g[p] : 0.f;
-            const float v_power = raw[p] * v_raw;
-            v_o += gauss[p] * v_raw;
-            v_a += -0.5f * dx * dx * v_power;
-            v_b += -dx * dy * v_power;
-            v_c += -0.5f * dy * dy * v_power;
-            v_mx += -(a * dx + b * dy) * v_power;
-            v_my += -(b * dx + c * dy) * v_power;
+          for (int cx0 = lx0 & ~(kChunk - 1); cx0 < lx1; cx0 += kChunk) {
+            const int p = ly * kTile + cx0;
+            const f8 dx = splat(mx - (float)(tg.x0 + cx0)) - kLaneOffsets;
+            const f8 power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
+            const f8 gval = exp8_nonpositive(vmin(power, splat(0.f)));
+            const f8 raw = o * gval;
+            const f8 alpha = vmin(splat(kAlphaMax), raw);
+            const i8 contributes = (kLanes >= lx0 - cx0) & (kLanes < lx1 - cx0) & (splat_int(k) <= load8(last_idx + p)) &
+                                   (power <= 0.f) & (alpha >= kAlphaMin);
+            if (!any8(contributes)) continue;
+            touched = true;
+            const f8 inv = 1.f / (1.f - alpha);
+            const f8 T_after = load8(T + p);
+            const f8 T_before = select(contributes, T_after * inv, T_after);
+            store8(T + p, T_before);
+            const f8 weight = select(contributes, alpha * T_before, splat(0.f));
+            // d alpha_image / d alpha_k = T_final / (1 - alpha_k)
+            f8 v_alpha = load8(v_alpha_pix + p) * load8(T_final + p) * inv;
+            for (int ch = 0; ch < C; ++ch) {
+              const f8 vp = load8(v_pix + ch * kTilePixels + p);
+              const f8 bh = load8(behind + ch * kTilePixels + p);
+              s_val[ch] += weight * vp;
+              // d pixel / d alpha_k = value_k T_k - (colour of the Gaussians behind) / (1 - alpha_k)
+              v_alpha += (vg[ch] * T_before - bh * inv) * vp;
+              store8(behind + ch * kTilePixels + p, bh + weight * vg[ch]);
+            }
+            // through alpha = min(0.99, opacity * exp(power)) to the 2D parameters
+            const f8 v_raw = select(contributes & (raw <= kAlphaMax), v_alpha, splat(0.f));
+            const f8 v_power = raw * v_raw;
+            s_o += gval * v_raw;
+            s_a += -0.5f * dx * dx * v_power;
+            s_b += -dx * dy * v_power;
+            s_c += -0.5f * dy * dy * v_power;
+            s_mx += -(a * dx + b * dy) * v_power;
+            s_my += -(b * dx + c * dy) * v_power;
           }
         }
+        if (!touched) continue;
         float* out = my_grads + (size_t)g * stride;
-        out[0] += v_mx; out[1] += v_my; out[2] += v_a; out[3] += v_b; out[4] += v_c; out[5] += v_o;
-        for (int ch = 0; ch < C; ++ch) out[6 + ch] += v_val[ch];
+        out[0] += sum8(s_mx); out[1] += sum8(s_my); out[2] += sum8(s_a); out[3] += sum8(s_b); out[4] += sum8(s_c);
+        out[5] += sum8(s_o);
+        for (int ch = 0; ch < C; ++ch) out[6 + ch] += sum8(s_val[ch]);
       }
     }
   }
-  auto total = torch::zeros({n, stride}, values.options());
+}
+
+}  // namespace
+
+// Composites values [V,C] front to back. Returns image [H,W,C], transmittance [H,W] and the
+// index (into tile_ids) of each pixel's last contributing Gaussian [H,W] (int32, -1: none).
+std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
+                                             torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
+                                             torch::Tensor tile_ids, int64_t width, int64_t height) {
+  const int64_t n = means2d.size(0);
+  check_rows(means2d, "means2d", n, 2);
+  check_rows(conics, "conics", n, 3);
+  check_cpu_float(opacities, "opacities");
+  check_cpu_float(values, "values");
+  TORCH_CHECK(values.dim() == 2 && values.size(0) == n, "values must have shape [", n, ", C]");
+  const int C = (int)values.size(1);
+  auto opts = values.options();
+  auto image = torch::empty({height, width, C}, opts);
+  auto transmittance = torch::empty({height, width}, opts);
+  auto last = torch::empty({height, width}, opts.dtype(torch::kInt32));
+  const float *mu = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *op = opacities.data_ptr<float>();
+  const float* val = values.data_ptr<float>();
+  const int32_t *box = boxes.data_ptr<int32_t>(), *off = tile_offsets.data_ptr<int32_t>(), *ids = tile_ids.data_ptr<int32_t>();
+  float *img = image.data_ptr<float>(), *trans = transmittance.data_ptr<float>();
+  int32_t* last_out = last.data_ptr<int32_t>();
+  const auto run = [&](auto tag) {
+    rasterize_forward_tiles<decltype(tag)::value>(mu, con, op, val, box, off, ids, width, height, C, img, trans,
+                                                  last_out);
+  };
+  switch (C) {
+    case 1: run(std::integral_constant<int, 1>{}); break;
+    case 3: run(std::integral_constant<int, 3>{}); break;
+    case 4: run(std::integral_constant<int, 4>{}); break;
+    case 6: run(std::integral_constant<int, 6>{}); break;
+    default: run(std::integral_constant<int, 0>{});
+  }
+  return {image, transmittance, last};
+}
+
+// Backward of rasterize_forward for the image and alpha = 1 - transmittance. Returns
+// v_means2d [V,2], v_conics [V,3], v_opacities [V], v_values [V,C].
+std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
+                                              torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
+                                              torch::Tensor tile_ids, torch::Tensor transmittance,
+                                              torch::Tensor last, torch::Tensor v_image, torch::Tensor v_alpha) {
+  const int64_t n = means2d.size(0), height = transmittance.size(0), width = transmittance.size(1);
+  const int C = (int)values.size(1);
+  const int stride = 6 + C;
+  const float *mu = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *op = opacities.data_ptr<float>();
+  const float* val = values.data_ptr<float>();
+  const int32_t *box = boxes.data_ptr<int32_t>(), *off = tile_offsets.data_ptr<int32_t>(), *ids = tile_ids.data_ptr<int32_t>();
+  const float *trans = transmittance.data_ptr<float>(), *gimg = v_image.data_ptr<float>(), *galpha = v_alpha.data_ptr<float>();
+  const int32_t* last_in = last.data_ptr<int32_t>();
+  const int n_threads = omp_get_max_threads();
+  // Tiles run in parallel and share Gaussians: each thread sums into its own buffer.
+  std::vector<float> grads((size_t)n_threads * n * stride, 0.f);
+  const auto run = [&](auto tag) {
+    rasterize_backward_tiles<decltype(tag)::value>(mu, con, op, val, box, off, ids, trans, last_in, gimg, galpha,
+                                                   width, height, C, n, grads.data(), n_threads);
+  };
+  switch (C) {
+    case 1: run(std::integral_constant<int, 1>{}); break;
+    case 3: run(std::integral_constant<int, 3>{}); break;
+    case 4: run(std::integral_constant<int, 4>{}); break;
+    case 6: run(std::integral_constant<int, 6>{}); break;
+    default: run(std::integral_constant<int, 0>{});
+  }
+  auto total = torch::empty({n, stride}, values.options());
   float* tot = total.data_ptr<float>();
   const int64_t count = n * stride;
 #pragma omp parallel for schedule(static)
@@ -575,7 +833,9 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tens
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("project_forward", &project_forward, "EWA projection of 3D Gaussians");
+  m.def("sh_forward", &sh_forward, "spherical-harmonics colours of the visible Gaussians");
+  m.def("sh_backward", &sh_backward, "backward of sh_forward");
+  m.def("project_forward", &project_forward, "EWA projection of 3D Gaussians, culled and compacted");
   m.def("project_backward", &project_backward, "backward of project_forward");
   m.def("bin_tiles", &bin_tiles, "16x16 tile lists sorted by depth");
   m.def("rasterize_forward", &rasterize_forward, "front-to-back compositing of C channels");

@@ -1,0 +1,99 @@
+"""Sweep of the 3DGS CPU recipe: quality after a fixed number of steps, and CPU time per step.
+
+On a shared machine wall-clock time is disturbed, so runs are compared at equal steps, with
+one torch thread, and each records its own CPU time per step (process time): the figure
+that decides how many steps fit in a budget. Every variant is a set of overrides of the cpu
+preset; every variant runs on every scene given, with Mono-HDR and both baselines alike.
+
+    python benchmarks/gs_cpu_sweep.py --scenes demo glossy --steps 3000 --eval-every 1000 \\
+        --variant base --variant "lr_sh_dc=0.0025" --out benchmarks/results/gs_cpu_sweep
+"""
+
+import argparse
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+import torch
+
+from backbones.gs import GaussianBackbone
+from mono_hdr_plugin.data.io import write_json
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.loading import load_scene
+from mono_hdr_plugin.train import Trainer, train_config_for
+
+
+def parse_variant(text: str) -> tuple[str, dict]:
+    """'base' or 'name=value,strategy.name=value,...' (values parsed as JSON, else strings)."""
+    if text == "base":
+        return text, {}
+    overrides = {}
+    for item in text.split(","):
+        key, value = item.split("=", 1)
+        try:
+            overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            overrides[key] = value
+    return text, overrides
+
+
+def configured(preset: str, overrides: dict):
+    config = GaussianBackbone.presets()[preset]
+    strategy = {k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith("strategy.")}
+    plain = {k: v for k, v in overrides.items() if not k.startswith("strategy.")}
+    return dataclasses.replace(config, **plain, strategy=dataclasses.replace(config.strategy, **strategy))
+
+
+def run(scene_name: str, method: str, preset: str, overrides: dict, steps: int, eval_every: int, eval_views: int,
+        out: Path, seed: int = 0) -> dict:
+    scene = load_scene(DataConfig(scene=scene_name))
+    backbone = configured(preset, overrides)
+    config = train_config_for(type(backbone))(backbone=backbone, preset=preset, out=out, quiet=True, max_steps=steps,
+                                              save_renders=False, checkpoint_every=10**9, max_eval_views=eval_views,
+                                              seed=seed)
+    config.hdr.method = method
+    trainer = Trainer(config, "gs", scene)
+    curve, cpu = [], 0.0
+    while trainer.step < steps:
+        started = time.process_time()
+        trainer.train_step()
+        cpu += time.process_time() - started
+        if trainer.step % eval_every == 0 or trainer.step == steps:
+            metrics = trainer.evaluate()
+            curve.append({"steps": trainer.step, "cpu_seconds": cpu, "gaussians": trainer.backbone.num_gaussians,
+                          **{k: metrics[k] for k in ("hdr_psnr", "hdr_psnr_gt_max", "hdr_ssim", "ldr_psnr", "ldr_ssim")}})
+            print(scene_name, method, curve[-1], flush=True)
+    return {"scene": scene_name, "method": method, "preset": preset, "overrides": overrides, "curve": curve,
+            "cpu_ms_per_step": 1000 * cpu / steps}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="+", default=["demo"])
+    parser.add_argument("--methods", nargs="+", default=["mono"])
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--variant", action="append", default=None, help="'base' or key=value,... overrides")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--eval-every", type=int, default=1000)
+    parser.add_argument("--eval-views", type=int, default=6)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/gs_cpu_sweep"))
+    parser.add_argument("--label", default="", help="stored with the results: the load they ran under")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    results_path = args.out / "sweep.json"
+    results = json.loads(results_path.read_text()) if results_path.is_file() else {"runs": []}
+    for name, overrides in map(parse_variant, args.variant or ["base"]):
+        for scene in args.scenes:
+            for method in args.methods:
+                record = run(scene, method, args.preset, overrides, args.steps, args.eval_every, args.eval_views,
+                             args.out / "runs")
+                record.update(variant=name, label=args.label, load_average=os.getloadavg(),
+                              date=time.strftime("%Y-%m-%d %H:%M:%S"))
+                results["runs"].append(record)
+                write_json(results_path, results)
+
+
+if __name__ == "__main__":
+    main()
