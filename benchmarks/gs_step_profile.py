@@ -5,7 +5,7 @@ budget), then times each part of a step on its own with that step's real sizes (
 seconds of `--repeats` runs, one torch thread unless --threads says otherwise), and the
 whole step. Prints a Markdown table; `--out FILE` writes it too.
 
-    python benchmarks/gs_step_profile.py --scene demo --out docs/gs_step_profile.md
+    python benchmarks/gs_step_profile.py --scene demo --warmup 300 --repeats 11 --out benchmarks/results/gs_step_profile.md
 """
 
 import argparse
