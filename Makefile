@@ -18,13 +18,15 @@ $(BIN)/mono-hdr: pyproject.toml
 
 install: $(BIN)/mono-hdr
 
-# A fixed number of steps (not seconds), so the figure is the same on every machine.
+# A fixed number of steps (not seconds), so the figure is the same on every machine up to
+# float summation order (benchmarks/run_committed.sh's machine: 39.70 dB in 44 s).
 DEMO_STEPS := 1000
+DEMO_EXPECTED_HDR_PSNR := 39.7
 
 demo: install
 	$(BIN)/mono-hdr train gs --scene demo --max-steps $(DEMO_STEPS) --out outputs/demo
 	@$(BIN)/python -c "import json; m = json.load(open('outputs/demo/metrics.json')); \
-	print(f'demo: HDR PSNR {m[\"hdr_psnr\"]:.2f} dB after {m[\"steps\"]} steps')"
+	print(f'demo: HDR PSNR {m[\"hdr_psnr\"]:.2f} dB after {m[\"steps\"]} steps (README: about $(DEMO_EXPECTED_HDR_PSNR) dB)')"
 
 test: install
 	$(BIN)/python -m pytest -q

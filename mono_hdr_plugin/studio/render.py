@@ -82,6 +82,8 @@ def _mitsuba():
     variant = os.environ.get("MONO_HDR_MITSUBA_VARIANT", "scalar_rgb")
     if mitsuba.variant() != variant:
         mitsuba.set_variant(variant)
+        # Projector and sky textures are HDR on purpose: Mitsuba's "exceeds [0, 1]" warnings are noise.
+        mitsuba.set_log_level(mitsuba.LogLevel.Error)
     return mitsuba
 
 
