@@ -31,7 +31,7 @@ import tyro
 from rich.console import Console
 
 from backbones.gs import GaussianConfig
-from mono_hdr_plugin.bench import run_facts
+from mono_hdr_plugin.bench.runs import run_facts
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import read_exr, write_json
