@@ -56,7 +56,8 @@ class BenchConfig:
     scene: str = "demo"
     resolution: int = 128
     """Image size: structure from motion needs about 128 px of this scene to place every viewpoint."""
-    spp: int = 32
+    spp: int = 121
+    """Samples per pixel of the studio renders (a prime's square: orthogonal-array sampling)."""
     views: int = 36
     """Studio cameras; the even ones are photographed, the odd ones held out."""
     steps: int = 600
