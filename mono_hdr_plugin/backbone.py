@@ -108,9 +108,10 @@ class Backbone(torch.nn.Module):
         return {}
 
     @classmethod
-    def tuning_space(cls) -> dict[str, tuple]:
-        """What `mono-hdr bench paper`'s recipe table tunes for every method alike: a field path of
-        this backbone's config -> candidate values (each method gets the same grid)."""
+    def tuning_space(cls, config: Any) -> dict[str, tuple]:
+        """What `mono-hdr bench paper`'s recipe table tunes for every method alike, for runs with
+        `config` (a preset's): a field path of the config -> candidate values (each method gets
+        the same grid)."""
         return {}
 
     @classmethod

@@ -130,7 +130,7 @@ class GaussianBackbone(Backbone):
         return {"raster": (BenchRasterConfig, bench_raster_command)}
 
     @classmethod
-    def tuning_space(cls) -> dict[str, tuple]:
+    def tuning_space(cls, config: GaussianConfig) -> dict[str, tuple]:
         """The recipe table's grid, around the cpu preset's base-colour and position rates."""
         return {"lr_sh_dc": (0.005, 0.01), "lr_means": (1.6e-4, 4.8e-4)}
 

@@ -84,10 +84,12 @@ class NerfBackbone(Backbone):
         return {"cpu": NerfConfig(field=GridFieldConfig()), "paper": NerfConfig(field=MlpFieldConfig())}
 
     @classmethod
-    def tuning_space(cls) -> dict[str, tuple]:
-        """The cpu recipe's two learning rates (grid features, tiny MLPs), around their defaults.
-        They are fields of the cpu preset's GridFieldConfig: the paper preset has neither."""
-        return {"field.grid_lr": (1e-2, 3e-2), "field.mlp_lr": (3e-3, 1e-2)}
+    def tuning_space(cls, config: NerfConfig) -> dict[str, tuple]:
+        """The grid field's two learning rates (features, tiny MLPs) around the cpu preset's, or
+        the official MLP's one rate around its 5e-4."""
+        if isinstance(config.field, GridFieldConfig):
+            return {"field.grid_lr": (1e-2, 3e-2), "field.mlp_lr": (3e-3, 1e-2)}
+        return {"field.lr": (5e-4, 1e-3)}
 
     @property
     def uses_grid(self) -> bool:

@@ -145,7 +145,10 @@ def tuning_trials(config: BenchPaperConfig) -> dict[tuple[str, str], list[RunSpe
     backbones, presets = paper_backbones(), parse_presets(config.presets)
     trials = {}
     for row, backbone in backbones.items():
-        space = {f"backbone.{path}": values for path, values in get_backbone(backbone).tuning_space().items()}
+        backbone_class = get_backbone(backbone)
+        preset_configs = backbone_class.presets()
+        preset_config = preset_configs.get(presets.get(backbone), next(iter(preset_configs.values())))
+        space = {f"backbone.{path}": values for path, values in backbone_class.tuning_space(preset_config).items()}
         space |= METHOD_TUNING_SPACE
         grid = [tuple(zip(space, values)) for values in itertools.product(*space.values())]
         for method in (PAPER_BASELINE[row], "mono"):

@@ -10,7 +10,8 @@ from mono_hdr_plugin.bench import runs
 from mono_hdr_plugin.bench.curves import BenchCurvesConfig, bench_curves
 from mono_hdr_plugin.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
                                          seed_values, table_variants, tuning_trials, write_paper_report)
-from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
+from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, set_override
+from mono_hdr_plugin.registry import get_backbone
 
 
 @pytest.fixture
@@ -89,6 +90,19 @@ class TestPaperTables:
         nerf_paths = {path for spec in trials[("NeRF", "mono")] for path, _ in spec.overrides}
         assert {"backbone.field.grid_lr", "backbone.field.mlp_lr", "hdr.converter_lr"} <= nerf_paths
         assert all(spec.scene == "demo" for specs in trials.values() for spec in specs)
+
+    def test_trials_of_the_paper_preset_tune_its_own_fields(self):
+        """The official MLP field has one learning rate and no grid: its trials must set that one
+        (the grid's rates were tuned before, and setting them failed)."""
+        trials = tuning_trials(BenchPaperConfig(tune_scene="demo", presets=("nerf=paper",)))
+        nerf_paths = {path for spec in trials[("NeRF", "mono")] for path, _ in spec.overrides}
+        assert "backbone.field.lr" in nerf_paths and "backbone.field.grid_lr" not in nerf_paths
+        for spec in trials[("NeRF", "mono")]:
+            config = get_backbone("nerf").presets()["paper"]
+            for path, value in spec.overrides:
+                if path.startswith("backbone."):
+                    set_override(config, path.removeprefix("backbone."), value)
+            assert config.field.lr == dict(spec.overrides)["backbone.field.lr"]
 
     def test_best_recipe_is_the_highest_hdr_psnr(self, tmp_path):
         store = RowStore(tmp_path / "paper.json", {})
