@@ -199,16 +199,20 @@ def run_row(spec: RunSpec, budget: RunBudget, out: str, threads: int | None = No
     `threads` sets torch's threads (a Ray task gets the CPUs it asked for). Raises what training
     raises (TrainingDiverged included): the executor records the failure.
     """
+    caller_threads = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)
-    trainer = build_run(spec, cached_scene(spec.scene, spec.exposure_index), Path(out), budget)
-    curve = EvaluateAlong(budget.eval_points)
-    trainer.fit([curve])
-    fps_ldr, fps_ldr_hdr = render_fps(trainer)
-    return {"key": spec.key, "spec": dataclasses.asdict(spec), "status": "ok", "curve": curve.curve,
-            "final": curve.curve[-1], "mean_step_seconds": trainer.train_seconds / max(trainer.step, 1),
-            "fps_ldr": fps_ldr, "fps_ldr_hdr": fps_ldr_hdr, "backbone_statistics": trainer.backbone.statistics(),
-            "peak_memory_mib": peak_memory_mib(), "threads": torch.get_num_threads()}
+    try:
+        trainer = build_run(spec, cached_scene(spec.scene, spec.exposure_index), Path(out), budget)
+        curve = EvaluateAlong(budget.eval_points)
+        trainer.fit([curve])
+        fps_ldr, fps_ldr_hdr = render_fps(trainer)
+        return {"key": spec.key, "spec": dataclasses.asdict(spec), "status": "ok", "curve": curve.curve,
+                "final": curve.curve[-1], "mean_step_seconds": trainer.train_seconds / max(trainer.step, 1),
+                "fps_ldr": fps_ldr, "fps_ldr_hdr": fps_ldr_hdr, "backbone_statistics": trainer.backbone.statistics(),
+                "peak_memory_mib": peak_memory_mib(), "threads": torch.get_num_threads()}
+    finally:  # the sequential executor runs rows in the caller's process: leave its threads as they were
+        torch.set_num_threads(caller_threads)
 
 
 def failed_row(spec: RunSpec, error: BaseException | str, attempts: int) -> dict[str, Any]:

@@ -4,6 +4,7 @@ and decide orderings by the documented rule."""
 import json
 
 import pytest
+import torch
 
 import register_backbone  # registers "voxel-grid"
 from mono_hdr_plugin.bench import runs
@@ -174,6 +175,16 @@ class TestBenchCurves:
         text = (tmp_path / "curves.md").read_text()
         assert "voxel-grid / hdr-gs" in text and "50.0" in text
         assert (tmp_path / "curves.png").stat().st_size > 0
+
+    def test_a_row_with_its_own_threads_leaves_the_callers(self, tmp_path, steps_of_50ms, monkeypatch):
+        """The sequential executor runs rows in this process: a row's --cpus-per-run must not stay
+        behind (later runs, and the pinned-metrics tests after a bench test, use 2 threads)."""
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
+        before = torch.get_num_threads()
+        row = runs.run_row(RunSpec("voxel-grid"), RunBudget(steps=2, eval_points=1, max_eval_views=1), str(tmp_path),
+                           threads=1)
+        assert row["threads"] == 1 and torch.get_num_threads() == before
 
 
 @pytest.mark.slow
