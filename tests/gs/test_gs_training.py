@@ -75,14 +75,14 @@ def studio_trainer(tmp_path, preset: str, steps: int) -> Trainer:
 
 @pytest.mark.slow
 class TestShortStudioRun:
-    def test_cpu_recipe_beats_the_official_one_in_the_same_steps(self, tmp_path):
-        """300 steps on the 128 px demo: the cpu preset passes 28 dB HDR PSNR, the official 30k-step
-        recipe scaled to 300 steps does not (benchmarks/results/gs_cpu_sweep holds the curves)."""
-        cpu = studio_trainer(tmp_path, "cpu", 300)
+    def test_cpu_recipe_learns_hdr_in_500_steps(self, tmp_path):
+        """500 steps on the 128 px demo: the cpu preset passes 30 dB HDR PSNR (34.7 dB when this was
+        written; 39.7 dB after `make demo`'s 1000 steps). Before the cpu preset, 500 steps of the
+        official recipe gave 19.8 dB on the easier 64 px demo (benchmarks/results/earlier-8232d53)."""
+        cpu = studio_trainer(tmp_path, "cpu", 500)
         before = cpu.evaluate()
         after = cpu.train()
-        paper = studio_trainer(tmp_path, "paper", 300).train()
-        assert after["hdr_psnr"] > 28.0 > paper["hdr_psnr"]
+        assert after["hdr_psnr"] > 30.0
         assert after["ldr_psnr"] > before["ldr_psnr"] + 10.0
 
     def test_hottest_pixels_keep_their_hue(self, tmp_path):
