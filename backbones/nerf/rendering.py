@@ -35,6 +35,18 @@ def compositing_weights(densities: Tensor, deltas: Tensor) -> Tensor:
     return alpha * torch.exp(-depth_before)
 
 
+def add_background(image: Tensor, accumulation: Tensor, background: Tensor) -> Tensor:
+    """image [N, C] + (1 - accumulation [N]) * background [3] on each group of 3 channels; a black
+    background adds nothing and allows any C."""
+    if not bool(background.abs().sum() > 0):
+        return image
+    channels = image.shape[-1]
+    if channels % 3:
+        raise ValueError(f"composite: a non-black background needs channels in groups of 3, "
+                         f"got {channels}; set the NeRF background to (0, 0, 0)")
+    return image + (1.0 - accumulation[:, None]) * background.to(image).repeat(channels // 3)
+
+
 def make_composite(weights: Tensor, output_shape: tuple[int, ...],
                    background: Tensor) -> Callable[[Tensor], Tensor]:
     """The closure LdrFeatures.composite: per-sample values to an image with these weights.
@@ -43,21 +55,14 @@ def make_composite(weights: Tensor, output_shape: tuple[int, ...],
     (1 - accumulation) * background to each group of 3 channels.
     The closure maps values [N, S, C] -> [*output_shape, C].
     """
-    accumulation = weights.sum(dim=-1, keepdim=True)
-    has_background = bool(background.abs().sum() > 0)
+    accumulation = weights.sum(dim=-1)
 
     def composite(values: Tensor) -> Tensor:
         if values.shape[:-1] != weights.shape:
             raise ValueError(f"composite: values must have shape [{weights.shape[0]}, "
                              f"{weights.shape[1]}, C] (rays, samples, channels), got {tuple(values.shape)}")
-        channels = values.shape[-1]
-        image = torch.einsum("ns,nsc->nc", weights, values)
-        if has_background:
-            if channels % 3:
-                raise ValueError(f"composite: a non-black background needs channels in groups of 3, "
-                                 f"got {channels}; set the NeRF background to (0, 0, 0)")
-            image = image + (1.0 - accumulation) * background.to(image).repeat(channels // 3)
-        return image.reshape(*output_shape, channels)
+        image = add_background(torch.einsum("ns,nsc->nc", weights, values), accumulation, background)
+        return image.reshape(*output_shape, values.shape[-1])
 
     return composite
 
@@ -72,19 +77,12 @@ def make_packed_composite(weights: Tensor, ray_indices: Tensor, accumulation: Te
     The closure maps values [M, C] -> [*output_shape, C].
     """
     num_rays = accumulation.shape[0]
-    has_background = bool(background.abs().sum() > 0)
 
     def composite(values: Tensor) -> Tensor:
         if values.dim() != 2 or values.shape[0] != weights.shape[0]:
             raise ValueError(f"composite: values must have shape [{weights.shape[0]}, C] (packed samples, "
                              f"channels), got {tuple(values.shape)}")
-        channels = values.shape[-1]
-        image = values.new_zeros(num_rays, channels).index_add(0, ray_indices, weights[:, None] * values)
-        if has_background:
-            if channels % 3:
-                raise ValueError(f"composite: a non-black background needs channels in groups of 3, "
-                                 f"got {channels}; set the NeRF background to (0, 0, 0)")
-            image = image + (1.0 - accumulation[:, None]) * background.to(image).repeat(channels // 3)
-        return image.reshape(*output_shape, channels)
+        image = values.new_zeros(num_rays, values.shape[-1]).index_add(0, ray_indices, weights[:, None] * values)
+        return add_background(image, accumulation, background).reshape(*output_shape, values.shape[-1])
 
     return composite
