@@ -13,12 +13,11 @@ from typing import ClassVar, Literal
 
 import numpy as np
 import torch
-from plyfile import PlyData, PlyElement
 from rich.console import Console
 from rich.progress import track
 from torch import Tensor
 
-from mono_hdr_plugin.data.io import atomic_path
+from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_vertices
 from mono_hdr_plugin.display import to_display, to_uint8
 from mono_hdr_plugin.evaluation import first_per_camera
 from mono_hdr_plugin.frames import LoadedModel, load_model
@@ -188,21 +187,14 @@ def write_point_cloud(path: Path, points: Tensor, colours: Tensor, hdr: Tensor) 
         vertices[name] = rgb[:, index]
     for index, name in enumerate(POINT_CLOUD_HDR):
         vertices[name] = hdr[:, index].float().numpy()
-    with atomic_path(path) as temporary:
-        PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
-    return path
+    return write_ply_vertices(path, vertices)
 
 
 def load_point_cloud(path: Path) -> tuple[Tensor, Tensor, Tensor | None]:
     """A PLY point cloud: points [N, 3], colours [N, 3] in [0, 1] (grey when it has none) and the
     linear HDR [N, 3] written by write_point_cloud (None in other files)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no PLY file at {path}")
-    try:
-        vertex = PlyData.read(str(path))["vertex"]
-    except (KeyError, ValueError) as error:
-        raise ValueError(f"{path} is not a point cloud PLY (need a 'vertex' element): {error}") from error
+    vertex = read_ply_vertices(path, "point cloud")
     names = set(vertex.data.dtype.names)
     if not {"x", "y", "z"} <= names:
         raise ValueError(f"{path}: the vertices have no x, y, z")

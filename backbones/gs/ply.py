@@ -4,11 +4,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from plyfile import PlyData, PlyElement
 from torch import Tensor
 
 from backbones.gs.sh import num_sh_bases
-from mono_hdr_plugin.data.io import atomic_path
+from mono_hdr_plugin.data.io import read_ply_vertices, write_ply_vertices
 
 
 def _attribute_names(rest_bases: int) -> list[str]:
@@ -35,22 +34,14 @@ def export_ply(backbone, path: str | Path) -> Path:
     vertices = np.empty(n, dtype=[(name, "f4") for name in names])
     for i, name in enumerate(names):
         vertices[name] = data[:, i]
-    path = Path(path)
-    with atomic_path(path) as temporary:
-        PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
-    return path
+    return write_ply_vertices(path, vertices)
 
 
 def load_ply(path: str | Path) -> dict[str, Tensor]:
     """Read a 3DGS PLY: means [N,3], sh_dc [N,1,3], sh_rest [N,K-1,3], log_scales [N,3],
     quats [N,4], opacity_logits [N] (the raw stored values; pass to load_gaussians)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no PLY file at {path}")
-    try:
-        vertex = PlyData.read(str(path))["vertex"]
-    except (KeyError, ValueError) as error:
-        raise ValueError(f"{path} is not a Gaussian splat PLY (need a 'vertex' element): {error}") from error
+    vertex = read_ply_vertices(path, "Gaussian splat")
     names = set(vertex.data.dtype.names)
     required = {"x", "y", "z", "f_dc_0", "opacity", "scale_0", "rot_0"}
     if not required <= names:

@@ -52,6 +52,17 @@ class RefineSchedule:
         return self.start < step < self.stop and step % self.every == 0
 
 
+def with_shared_rows(name: str, value: Tensor, sources: Tensor, logits: Tensor, log_scales: Tensor) -> Tensor:
+    """A copy of parameter `name` whose `sources` rows take the opacity and scale they will share
+    with their copies (other parameters are copied unchanged)."""
+    value = value.clone()
+    if name == "opacity_logits":
+        value[sources] = logits
+    elif name == "log_scales":
+        value[sources] = log_scales
+    return value
+
+
 @dataclass
 class McmcStrategy:
     """3DGS-MCMC: relocate dead Gaussians onto live ones, grow up to a budget, explore with
@@ -138,11 +149,7 @@ class McmcStrategy:
         targets = torch.cat([sources, dead_rows])
 
         def edit(name: str, value: Tensor) -> Tensor:
-            value = value.clone()
-            if name == "opacity_logits":
-                value[sources] = new_logits
-            elif name == "log_scales":
-                value[sources] = new_log_scales
+            value = with_shared_rows(name, value, sources, new_logits, new_log_scales)
             value[dead_rows] = value[sources]
             return value
 
@@ -169,11 +176,7 @@ class McmcStrategy:
         new_logits, new_log_scales = self._shared_rows(model, sources)
 
         def edit(name: str, value: Tensor) -> Tensor:
-            value = value.clone()
-            if name == "opacity_logits":
-                value[sources] = new_logits
-            elif name == "log_scales":
-                value[sources] = new_log_scales
+            value = with_shared_rows(name, value, sources, new_logits, new_log_scales)
             return torch.cat([value, value[sources]])
 
         def edit_moment(name: str, moment: Tensor) -> Tensor:

@@ -219,3 +219,25 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False) ->
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as temporary:
         OpenEXR.File(header, {"RGB": pixels}).write(str(temporary))
+
+
+def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:
+    """A PLY file whose one "vertex" element holds the structured array `vertices` (atomic)."""
+    from plyfile import PlyData, PlyElement  # noqa: PLC0415 - only exports need it
+
+    with atomic_path(path) as temporary:
+        PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
+    return Path(path)
+
+
+def read_ply_vertices(path: str | os.PathLike, kind: str):
+    """The "vertex" element of a PLY file; errors name the file and the `kind` of PLY expected."""
+    from plyfile import PlyData  # noqa: PLC0415
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no PLY file at {path}")
+    try:
+        return PlyData.read(str(path))["vertex"]
+    except (KeyError, ValueError) as error:
+        raise ValueError(f"{path} is not a {kind} PLY (need a 'vertex' element): {error}") from error
