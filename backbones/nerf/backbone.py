@@ -12,6 +12,7 @@ from torch import Tensor
 
 from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
 from backbones.nerf.fields import GridRadianceField, MlpRadianceField, OccupancyGrid
+from backbones.nerf._extension import load_extension
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
@@ -68,6 +69,7 @@ class NerfBackbone(Backbone):
             if not 1 <= field.rays_per_step <= field.max_rays_per_step or field.samples_per_step < 1:
                 raise ValueError("the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
                                  f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}")
+            load_extension()  # built (or loaded) here, so a first build is never counted as training time
             self.grid_field = GridRadianceField(field)
             self.occupancy = OccupancyGrid(field.occupancy_resolution)
             self.occupancy.mark_seen(scene.train_cameras, self.to_world)

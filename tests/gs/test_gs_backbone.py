@@ -49,6 +49,14 @@ def train_step(backbone, optimizer, camera, target, step):
 
 
 class TestInitialisation:
+    @pytest.mark.parametrize("backend,builds", [("kernel", 1), ("torch", 0)])
+    def test_the_kernel_is_built_at_construction(self, monkeypatch, backend, builds):
+        # A first build takes a minute: inside the first step it would count as training time.
+        calls = []
+        monkeypatch.setattr("backbones.gs.model.load_extension", lambda: calls.append(1))
+        GaussianBackbone(GaussianConfig(backend=backend), make_scene(points=20))
+        assert len(calls) == builds
+
     def test_from_points_and_colours(self):
         scene = make_scene(points=200)
         backbone = GaussianBackbone(GaussianConfig(), scene)

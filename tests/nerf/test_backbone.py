@@ -45,6 +45,14 @@ class TestNerfBackboneSetup:
         assert any(ep.name == "nerf" and ep.load() is NerfBackbone
                    for ep in entry_points(group="mono_hdr.backbones"))
 
+    @pytest.mark.parametrize("preset,builds", [("cpu", 1), ("paper", 0)])
+    def test_the_kernels_are_built_at_construction(self, scene, monkeypatch, preset, builds):
+        # A first build takes a minute: inside the first step it would count as training time.
+        calls = []
+        monkeypatch.setattr("backbones.nerf.backbone.load_extension", lambda: calls.append(1))
+        NerfBackbone(tiny_config(preset), scene)
+        assert len(calls) == builds
+
     def test_class_attributes(self, scene):
         assert issubclass(NerfBackbone, Backbone)
         assert NerfBackbone.config_class is NerfConfig and NerfBackbone.loss_kind == "mse"
