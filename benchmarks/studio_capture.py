@@ -54,8 +54,8 @@ class BenchConfig:
     out: Path = Path("benchmarks/results/studio_capture")
     """Where the photos, datasets, runs and results go."""
     scene: str = "demo"
-    resolution: int = 128
-    """Image size: structure from motion needs about 128 px of this scene to place every viewpoint."""
+    resolution: int = 192
+    """Image size: at 128 px structure from motion places too few photos of this scene to go on."""
     spp: int = 121
     """Samples per pixel of the studio renders (a prime's square: orthogonal-array sampling)."""
     views: int = 36
