@@ -1,0 +1,50 @@
+"""How much space the NeRF occupancy grid keeps along a run, beside the run's quality.
+
+    python benchmarks/nerf_occupancy_probe.py --scene lamp-room --methods mono hdr-nerf --steps 1200
+    python benchmarks/nerf_occupancy_probe.py --scene lamp-room --methods mono --threshold 0.001
+
+Prints, every 200 steps, the fraction of seen cells marked occupied, and HDR / LDR PSNR (4 test
+views) every 400 steps. Made to study why Mono-HDR-NeRF stalls on lamp-room (README, "What
+accuracy costs in time"): at equal steps its grid keeps a quarter of the cells HDR-NeRF keeps.
+"""
+
+import argparse
+import tempfile
+from pathlib import Path
+
+from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene
+from mono_hdr_plugin.train import TrainingHook
+
+
+class OccupancyAlong(TrainingHook):
+    def __init__(self, every: int = 200, evaluate_every: int = 400):
+        self.every, self.evaluate_every = every, evaluate_every
+
+    def after_step(self, trainer, record) -> None:
+        if trainer.step % self.every and not trainer.finished:
+            return
+        grid = trainer.backbone.occupancy
+        kept = float(grid.occupied.float().sum() / grid.seen.float().sum())
+        metrics = trainer.evaluate() if trainer.step % self.evaluate_every == 0 or trainer.finished else {}
+        psnr = "" if not metrics else f"  HDR {metrics['hdr_psnr']:.2f} dB  LDR {metrics['ldr_psnr']:.2f} dB"
+        print(f"step {trainer.step:5d}  occupied {100 * kept:5.1f} % of seen cells{psnr}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", default="lamp-room")
+    parser.add_argument("--methods", nargs="+", default=["mono", "hdr-nerf"])
+    parser.add_argument("--steps", type=int, default=1200)
+    parser.add_argument("--threshold", type=float, default=None, help="occupancy_threshold (default: the preset's)")
+    args = parser.parse_args()
+    scene = cached_scene(args.scene, 1)
+    overrides = () if args.threshold is None else (("backbone.field.occupancy_threshold", args.threshold),)
+    for method in args.methods:
+        print(f"nerf / {method} on {args.scene}")
+        spec = RunSpec(backbone="nerf", method=method, scene=args.scene, overrides=overrides)
+        trainer = build_run(spec, scene, Path(tempfile.mkdtemp()), RunBudget(steps=args.steps, max_eval_views=4))
+        trainer.fit([OccupancyAlong()])
+
+
+if __name__ == "__main__":
+    main()
