@@ -37,11 +37,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1200)
     parser.add_argument("--threshold", type=float, default=None, help="occupancy_threshold (default: the preset's)")
     args = parser.parse_args()
-    scene = cached_scene(args.scene, 1)
     overrides = () if args.threshold is None else (("backbone.field.occupancy_threshold", args.threshold),)
     for method in args.methods:
         print(f"nerf / {method} on {args.scene}")
         spec = RunSpec(backbone="nerf", method=method, scene=args.scene, overrides=overrides)
+        scene = cached_scene(spec.scene, spec.exposure_index)  # the exposure the benchmark rows train on
         trainer = build_run(spec, scene, Path(tempfile.mkdtemp()), RunBudget(steps=args.steps, max_eval_views=4))
         trainer.fit([OccupancyAlong()])
 

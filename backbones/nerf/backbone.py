@@ -10,9 +10,9 @@ import math
 import torch
 from torch import Tensor
 
+from backbones.nerf._extension import load_extension
 from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
 from backbones.nerf.fields import GridRadianceField, MlpRadianceField, OccupancyGrid
-from backbones.nerf._extension import load_extension
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
