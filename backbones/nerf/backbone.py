@@ -131,6 +131,13 @@ class NerfBackbone(Backbone):
         if step % field.occupancy_update_every == 0:
             self.refresh_occupancy(all_cells=step < field.occupancy_warmup_steps)
 
+    def statistics(self) -> dict[str, float]:
+        """cpu field: the share of camera-seen cells the occupancy grid keeps (what samples reach)."""
+        if not self.uses_grid:
+            return {}
+        grid = self.occupancy
+        return {"occupied_fraction": float(grid.occupied.sum()) / max(float(grid.seen.sum()), 1.0)}
+
     def _sync_pixel_batch(self) -> None:
         self.pixel_batch = int(self.rays_per_step)
 

@@ -122,6 +122,17 @@ class TestNerfBackboneSetup:
         backbone.occupancy.update(lambda p: torch.full(p.shape[:1], 100.0), decay=0.9, threshold=1.0)
         assert torch.equal(occupancy.occupied, occupancy.seen)
 
+    def test_statistics_count_occupied_seen_cells(self, scene):
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        assert backbone.statistics() == {"occupied_fraction": 1.0}
+        # Dense only where x > 0 (a cell border at an even resolution): exactly the cells right of it.
+        backbone.occupancy.update(lambda p: torch.where(p[:, 0] > 0, 100.0, 0.0), decay=0.9, threshold=1.0)
+        right = (backbone.occupancy.cell_centers()[:, 0] > 0).reshape(backbone.occupancy.seen.shape)
+        seen = backbone.occupancy.seen
+        expected = float((right & seen).sum()) / float(seen.sum())
+        assert 0 < expected < 1 and backbone.statistics()["occupied_fraction"] == pytest.approx(expected)
+        assert NerfBackbone(tiny_config("paper"), scene).statistics() == {}
+
 
 class TestRenderLdrFeatures:
     def test_pixel_batch_shapes_paper(self, scene):

@@ -1,0 +1,78 @@
+"""Quality per second of the NeRF cpu field under variants of its occupancy grid.
+
+Each variant is a set of overrides of the cpu preset's field (`backbone.field.<name>`), run on
+every scene and method given under the same time budget as `mono-hdr bench curves`, with
+evaluations along the run, so variants are compared at equal training seconds. Run it with
+nothing else on the machine:
+
+    python benchmarks/nerf_occupancy_sweep.py --scenes demo lamp-room sunlit-window glossy coloured-light \\
+        --methods mono --variant base --variant occupancy_threshold=0.001 --seconds 120 \\
+        --out benchmarks/results/nerf_occupancy_sweep
+
+Writes OUT/sweep.json (rows as `bench curves` stores them; an interrupted sweep resumes) and
+OUT/sweep.md (HDR / LDR PSNR at each evaluation, step time, share of seen cells kept at the end).
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
+
+
+def parse_variant(text: str) -> tuple[tuple[str, object], ...]:
+    """'base' -> (); 'name=value,name=value' -> overrides of backbone.field (values parsed as JSON)."""
+    if text == "base":
+        return ()
+    overrides = []
+    for item in text.split(","):
+        name, value = item.split("=", 1)
+        overrides.append((f"backbone.field.{name}", json.loads(value)))
+    return tuple(overrides)
+
+
+def variant_name(spec: dict) -> str:
+    return ",".join(f"{path.rsplit('.', 1)[1]}={value}" for path, value in spec["overrides"]) or "base"
+
+
+def write_report(store: RowStore, path: Path) -> None:
+    rows = sorted((row for row in store.rows.values() if row["status"] == "ok"),
+                  key=lambda r: (r["spec"]["scene"], r["spec"]["method"], variant_name(r["spec"])))
+    points = max((len(row["curve"]) for row in rows), default=0)
+    times = [f"{row['curve'][i]['train_seconds']:.0f} s" for row in rows[:1] for i in range(points)]
+    lines = ["HDR / LDR PSNR (dB) at each evaluation; ms a step over the run; share of seen cells occupied at the end.",
+             "", "| scene | method | variant | " + " | ".join(times) + " | ms / step | occupied |",
+             "|---|---|---|" + "---|" * points + "---|---|"]
+    for row in rows:
+        cells = " | ".join(f"{c['hdr_psnr']:.1f} / {c['ldr_psnr']:.1f}" for c in row["curve"])
+        occupied = row["backbone_statistics"].get("occupied_fraction")
+        lines.append(f"| {row['spec']['scene']} | {row['spec']['method']} | {variant_name(row['spec'])} | {cells} | "
+                     f"{1000 * row['mean_step_seconds']:.0f} | {'' if occupied is None else f'{100 * occupied:.0f} %'} |")
+    lines += [f"\nFailed: {row['key']}: {row['error']}" for row in store.rows.values() if row["status"] != "ok"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", nargs="+", default=["lamp-room"])
+    parser.add_argument("--methods", nargs="+", default=["mono"])
+    parser.add_argument("--variant", action="append", default=None, help="'base' or name=value,... (field overrides)")
+    parser.add_argument("--seconds", type=float, default=120.0)
+    parser.add_argument("--eval-points", type=int, default=3)
+    parser.add_argument("--eval-views", type=int, default=8)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/nerf_occupancy_sweep"))
+    args = parser.parse_args()
+    variants = [parse_variant(text) for text in args.variant or ["base"]]
+    specs = [RunSpec(backbone="nerf", method=method, scene=scene, overrides=overrides)
+             for overrides in variants for scene in args.scenes for method in args.methods]
+    budget = RunBudget(seconds=args.seconds, eval_points=args.eval_points, max_eval_views=args.eval_views)
+    store = RowStore(args.out / "sweep.json", {"budget": budget.__dict__})
+    try:
+        execute(specs, budget, store, args.out / "runs", ExecutorConfig(),
+                on_row=lambda row: write_report(store, args.out / "sweep.md"))
+    finally:
+        write_report(store, args.out / "sweep.md") if store.rows else None
+
+
+if __name__ == "__main__":
+    main()
