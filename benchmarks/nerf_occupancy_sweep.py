@@ -15,6 +15,7 @@ OUT/sweep.md (HDR / LDR PSNR at each evaluation, step time, share of seen cells 
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
@@ -49,6 +50,7 @@ def write_report(store: RowStore, path: Path) -> None:
         lines.append(f"| {row['spec']['scene']} | {row['spec']['method']} | {variant_name(row['spec'])} | {cells} | "
                      f"{1000 * row['mean_step_seconds']:.0f} | {'' if occupied is None else f'{100 * occupied:.0f} %'} |")
     lines += [f"\nFailed: {row['key']}: {row['error']}" for row in store.rows.values() if row["status"] != "ok"]
+    lines += ["", f"Made by `python {' '.join(sys.argv)}` (one seed; machine, commit and date in sweep.json)."]
     path.write_text("\n".join(lines) + "\n")
 
 
