@@ -142,6 +142,26 @@ def checker(colour0: dict, colour1: dict, tiles: float) -> dict:
             "to_uv": scale(tiles, tiles, 1.0)}
 
 
+def noise_image(seed: int, size: int = 512) -> np.ndarray:
+    """[size, size, 3] in [0, 1]: random colours in square cells of 4, 16 and 64 per side, summed.
+    Blobs at every scale give SIFT features at every distance, and no two look alike."""
+    rng = np.random.default_rng(seed)
+    image = np.zeros((size, size, 3))
+    for cells, weight in ((4, 1.0), (16, 0.8), (64, 0.6)):
+        grid = rng.random((cells, cells, 3))
+        image += weight * np.kron(grid, np.ones((size // cells, size // cells, 1)))
+    return (image - image.min()) / (image.max() - image.min())
+
+
+def noise_texture(seed: int, tiles: float = 1.0, low: float = 0.05, high: float = 0.85) -> dict:
+    """A diffuse reflectance texture of noise_image(seed) at 256 px, scaled into [low, high],
+    repeated `tiles` times across a shape. Structure from motion matches its features between
+    photos; a checkerboard's corners all look alike and mislead it."""
+    image = low + (high - low) * noise_image(seed, size=256)
+    return {"type": "bitmap", "filter_type": "bilinear", "bitmap": image.astype(np.float32),
+            "to_uv": scale(tiles, tiles, 1.0)}
+
+
 def box(centre, size, bsdf: dict) -> dict:
     """An axis-aligned box with the given centre and full size (x, y, z)."""
     return {"type": "cube", "to_world": place(translate(*centre), scale(*(s / 2 for s in size))),

@@ -3,8 +3,8 @@
 import numpy as np
 
 from mono_hdr_plugin.studio.capture import CaptureSettings
-from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, checker, diffuse, lamp, look_at_matrix, panel,
-                                          place, projector, rgb, rotate, scale, translate)
+from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, checker, diffuse, lamp, look_at_matrix,
+                                          noise_texture, panel, place, projector, rgb, rotate, scale, translate)
 
 
 WINDOW = (-0.7, 0.7, 0.9, 1.9)
@@ -51,6 +51,22 @@ def demo_content() -> dict:
                        "bsdf": diffuse(checker(rgb(0.1, 0.6, 0.15), rgb(0.9, 0.9, 0.9), 6))},
         "blue_pillar": box((0.8, 0.5, 0.45), (0.3, 0.3, 0.9), diffuse(rgb(0.1, 0.2, 0.7))),
         "bulb": lamp((-0.1, 0.7, 1.25), 0.07, (3000.0, 2700.0, 2200.0)),
+    }
+
+
+def textured_desk_content() -> dict:
+    """The demo's layout with textures that never repeat and a dimmer, larger bulb: a scene a
+    photographer can capture whole (structure from motion places every photo; a bracket reaches
+    below the bulb's white), for the own-photos pipeline and its benchmark."""
+    return {
+        "floor": panel(scale(2.0), diffuse(noise_texture(1))),
+        "wall": panel(place(translate(0, 1.2, 1.0), rotate("x", 90), scale(2.0, 1.0, 1)),
+                      diffuse(noise_texture(2, tiles=0.7))),
+        "crate": box((-0.6, 0.1, 0.25), (0.5, 0.5, 0.5), diffuse(noise_texture(3, tiles=0.5))),
+        "ball": {"type": "sphere", "center": [0.25, -0.2, 0.3], "radius": 0.3,
+                 "bsdf": diffuse(noise_texture(4, tiles=2.0))},
+        "pillar": box((0.8, 0.5, 0.45), (0.3, 0.3, 0.9), diffuse(noise_texture(5, tiles=0.5))),
+        "bulb": lamp((-0.1, 0.7, 1.25), 0.1, (400.0, 360.0, 300.0)),
     }
 
 
@@ -167,6 +183,11 @@ BUILTIN_SCENES = (
         rig=CameraRig(target=(0.0, 0.4, 0.6), radius=3.4, fov_deg=55, **FORWARD_ARC),
         effects=("exposure", "vignette", "white_balance", "crf", "clip", "quantize"),
         capture=CaptureSettings(crf="bt709", vignette=0.2, white_balance=(0.95, 1.0, 1.1))),
+    StudioScene(
+        name="textured-desk", description="the demo's layout with non-repeating textures: for photographing it",
+        content=textured_desk_content, rig=CameraRig(target=(0.0, 0.3, 0.5), radius=3.6, fov_deg=50, **FORWARD_ARC),
+        spp=121, effects=("exposure", "noise", "crf", "clip", "quantize"),
+        capture=CaptureSettings(crf="srgb")),
 )
 
 SCENES: dict[str, StudioScene] = {scene.name: scene for scene in BUILTIN_SCENES}

@@ -103,9 +103,12 @@ def third_stop(seconds: float) -> Fraction:
 
 
 def metered_exposure(radiance: np.ndarray, key: float) -> float:
-    """Seconds that put the geometric-mean luminance of linear radiance [H, W, 3] at `key`."""
+    """Seconds that put the geometric-mean luminance of the lit pixels of linear radiance [H, W, 3]
+    at `key`. Pixels that see nothing (a render's empty background) do not count: a camera's meter
+    reads a dim scene, not a void, and they would drag a geometric mean towards zero."""
     values = luminance(radiance)
-    return key / float(np.exp(np.mean(np.log(np.clip(values, 1e-6, None)))))
+    lit = values[values > 0]
+    return key / float(np.exp(np.mean(np.log(lit)))) if lit.size else 1.0
 
 
 def save_jpeg(path: Path, pixels: np.ndarray, quality: int = 95, **exif) -> Path:

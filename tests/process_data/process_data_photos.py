@@ -1,8 +1,9 @@
 """A textured studio scene photographed from known cameras, saved as JPEGs with EXIF.
 
-The built-in scenes are checkerboards, whose repeated corners confuse SIFT matching; this one
-wraps multi-scale noise textures on a floor, a wall, a box and a ball under a uniform sky, so
-structure from motion finds thousands of distinct features and the render converges quickly.
+Most built-in scenes are checkerboards, whose repeated corners confuse SIFT matching; this one
+wraps the studio's noise texture (a PNG file, as a user's scene would load it) on a floor, a wall,
+a box and a ball under a uniform sky, so structure from motion finds thousands of distinct
+features and the render converges quickly.
 """
 
 from dataclasses import dataclass
@@ -15,19 +16,14 @@ from PIL import Image
 from mono_hdr_plugin.cameras import Camera
 from mono_hdr_plugin.studio.capture import capture
 from mono_hdr_plugin.studio.render import render_scene
-from mono_hdr_plugin.studio.scene import CameraRig, StudioScene, box, diffuse, panel, place, rgb, rotate, scale, translate
+from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, diffuse, noise_image, panel, place, rgb, rotate,
+                                          scale, translate)
 from mono_hdr_plugin.studio.shoot import save_jpeg
 
 
 def noise_texture(path: Path, size: int = 512, seed: int = 0) -> Path:
-    """A colourful multi-scale noise PNG: blobs at every scale give SIFT features at every distance."""
-    rng = np.random.default_rng(seed)
-    image = np.zeros((size, size, 3))
-    for cells, weight in ((4, 1.0), (16, 0.8), (64, 0.6)):
-        grid = rng.random((cells, cells, 3))
-        image += weight * np.kron(grid, np.ones((size // cells, size // cells, 1)))
-    image = (image - image.min()) / (image.max() - image.min())
-    Image.fromarray((image * 255).astype(np.uint8)).save(path)
+    """The studio's noise texture (colourful blobs at every scale) as a PNG."""
+    Image.fromarray((noise_image(seed, size) * 255).astype(np.uint8)).save(path)
     return path
 
 

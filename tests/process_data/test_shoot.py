@@ -35,6 +35,17 @@ def photos(scene, tmp_path_factory):
     return shoot(scene, tmp_path_factory.mktemp("shoot") / "photos", SHOOT)
 
 
+class TestMetering:
+    def test_geometric_mean_of_lit_pixels(self):
+        radiance = np.zeros((4, 4, 3), np.float32)
+        radiance[:2] = 0.5
+        radiance[:1] = 2.0  # geometric mean of 2.0 and 0.5 is 1.0; the empty half does not count
+        assert metered_exposure(radiance, 0.18) == pytest.approx(0.18)
+
+    def test_nothing_lit(self):
+        assert metered_exposure(np.zeros((4, 4, 3), np.float32), 0.18) == 1.0
+
+
 class TestShoot:
     def test_brackets_and_singles(self, photos):
         assert len(photos.shots) == 24 and photos.held_out == []

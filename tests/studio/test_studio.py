@@ -18,7 +18,8 @@ from mono_hdr_plugin.studio import render as render_module
 from mono_hdr_plugin.studio.commands import ScenesConfig, list_scenes, list_scenes_command
 from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
 from mono_hdr_plugin.studio.render import dynamic_range, render_key, render_scene, seed_agreement
-from mono_hdr_plugin.studio.scene import STUDIO_EXPOSURES, CameraRig, StudioScene, lamp
+from mono_hdr_plugin.studio.scene import (STUDIO_EXPOSURES, CameraRig, StudioScene, diffuse, lamp, noise_image,
+                                          noise_texture, rgb)
 from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES, SCENES
 
 REAL = {scene.name: scene for scene in BUILTIN_SCENES}
@@ -71,6 +72,38 @@ class TestRegistry:
     def test_listing_with_render_states_the_agreement(self):
         row = next(row for row in list_scenes(render=True) if row["name"] == "demo")
         assert math.isfinite(row["agreement_hdr"]) and row["agreement_ldr"] > 10
+
+
+class TestNoiseTexture:
+    def test_seeded(self):
+        assert np.array_equal(noise_image(3, 64), noise_image(3, 64))
+        assert not np.allclose(noise_image(3, 64), noise_image(4, 64))
+
+    def test_no_two_patches_alike(self):
+        # A checkerboard repeats every two tiles; every 32 px patch of the noise is its own.
+        image = noise_image(0, 256)
+        patches = image.reshape(8, 32, 8, 32, 3).transpose(0, 2, 1, 3, 4).reshape(64, -1)
+        gaps = np.abs(patches[:, None] - patches[None]).mean(-1) + np.eye(64)
+        assert gaps.min() > 0.05
+
+    def test_reflectance_range_and_tiling(self):
+        texture = noise_texture(1, tiles=2.0, low=0.1, high=0.6)
+        bitmap = texture["bitmap"]
+        assert bitmap.shape == (256, 256, 3) and bitmap.dtype == np.float32
+        assert bitmap.min() == pytest.approx(0.1) and bitmap.max() == pytest.approx(0.6)
+        assert np.allclose(np.diag(texture["to_uv"]), [2.0, 2.0, 1.0, 1.0])
+
+    def test_textured_desk_renders_its_texture(self):
+        # Against the same scene with a flat grey floor (same seeds, so the same light paths):
+        # the ratio of the two floors is the texture, which varies from pixel to pixel.
+        textured = SCENES["textured-desk"]
+        flat = replace(textured, name="flat-desk",
+                       content=lambda: {**textured.content(), "floor": {**textured.content()["floor"],
+                                                                        "bsdf": diffuse(rgb(0.45))}})
+        first, second = render_scene(textured), render_scene(flat)
+        floor = first.hit & (np.abs(first.positions[..., 2]) < 1e-3)
+        ratio = first.radiance[floor].mean(-1) / np.maximum(second.radiance[floor].mean(-1), 1e-9)
+        assert floor.sum() > 100 and ratio.std() > 0.2 * ratio.mean()
 
 
 class TestRenderCache:
