@@ -190,13 +190,15 @@ class TestTraining:
 
     exposures = [0.5, 0.9, 0.3, 0.6]
 
-    def run(self, voxel_scene, voxel_backbone_config, tmp_path, known: bool, method: str = "mono", steps: int = 6):
+    def run(self, voxel_scene, voxel_backbone_config, tmp_path, known: bool, method: str = "mono", steps: int = 6,
+            learn: bool | None = None):
         from mono_hdr_plugin.train import Trainer, train_config_for
 
         config = train_config_for(type(voxel_backbone_config))(
             backbone=voxel_backbone_config, out=tmp_path / "run", quiet=True, max_steps=steps, save_renders=False,
             checkpoint_every=10**9, max_eval_views=2)
         config.hdr.method = method
+        config.exposure.learn_exposure = learn
         return Trainer(config, "voxel-grid", auto_exposed(voxel_scene, self.exposures, known))
 
     def test_known_auto_exposure_is_fixed(self, voxel_scene, voxel_backbone_config, tmp_path):
@@ -218,6 +220,16 @@ class TestTraining:
         assert report["learned"] and report["reference_exposure"] is None
         assert report["views"][trainer.scene.train[1].name]["relative"] == pytest.approx(float(exposures.relative_exposures()[1]))
         assert metrics["ldr_exposure_fitted"] == 0  # the test views kept their known exposure
+
+    def test_right_exposures_stay_right_while_learning(self, voxel_scene, voxel_backbone_config, tmp_path):
+        # Known exposures learned from their true values: Adam moves each by about its learning rate
+        # a step whatever the gradient, so the default rate must keep this walk small (at 0.01 these
+        # 60 steps take one 13 % away).
+        trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=True, steps=60, learn=True)
+        assert trainer.pipeline.exposures.learned
+        trainer.train()
+        relative = trainer.pipeline.exposures.relative_exposures().numpy()
+        np.testing.assert_allclose(relative, np.array(self.exposures) / 0.6, rtol=0.03)
 
     def test_checkpoint_keeps_the_exposures(self, voxel_scene, voxel_backbone_config, tmp_path):
         from mono_hdr_plugin.train import load_pipeline
