@@ -56,7 +56,7 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
         for view in views:
             output = (pipeline.render_matching(view.camera, view.image) if view.name in fitted
                       else pipeline.render(view.camera, view.exposure))
-            ldr = output.ldr.clamp(0.0, 1.0)
+            ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
             row = {"view": view.stem, "view_id": view.view_id, "exposure": view.exposure,
                    "ldr_psnr": psnr(ldr, view.image), "ldr_ssim": ssim(ldr.double(), view.image.double()).item()}
             if lpips_model is not None:
@@ -105,6 +105,6 @@ def save_view_renders(render_dir: Path, view: View, output: Frame) -> list[Path]
 def save_hdr_renders(render_dir: Path, view: View, hdr: torch.Tensor) -> list[Path]:
     """<stem>_hdr.exr (linear) and <stem>_hdr_mulaw.png (tone-mapped for display) of an HDR render."""
     paths = [render_dir / f"{view.stem}_hdr.exr", render_dir / f"{view.stem}_hdr_mulaw.png"]
-    write_exr(paths[0], hdr.float().numpy())
+    write_exr(paths[0], hdr.numpy())
     write_png(paths[1], normalise_hdr(hdr).numpy())
     return paths

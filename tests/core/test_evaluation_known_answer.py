@@ -22,7 +22,9 @@ from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.evaluation import evaluate
+from mono_hdr_plugin.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods import MethodConfig
+from mono_hdr_plugin.metrics import psnr
 from mono_hdr_plugin.pipeline import Pipeline
 from mono_hdr_plugin.train import build_trainer, train_config_for
 
@@ -162,6 +164,20 @@ class TestEvaluateKnownAnswer:
         views = [test[key] for key in [(3, 2.0), (1, 0.5), (1, 2.0), (2, 0.5), (0, 0.5)]]
         rows = assert_rows(metrics["views"], views, "mono", {(3, 2.0), (1, 0.5), (0, 0.5)}, brightness=1.6)
         assert rows[0]["ldr_psnr"] < 15  # the render is far off, and clipped it is less so
+
+    def test_views_of_unknown_exposure_are_fitted_to_their_photo(self):
+        scene = known_scene()
+        pipeline = known_pipeline(scene, "mono")
+        pipeline.exposures = ViewExposures(torch.zeros(len(scene.train)), 1, 2.0, srgb_response(), learn=False)
+        scene.metadata["unknown_exposures"] = [v.name for v in scene.test if v.exposure == 2.0]
+        metrics = evaluate(pipeline, scene)
+        fitted = [(row, v) for row in metrics["views"] for v in scene.test
+                  if (v.view_id, v.exposure) == (row["view_id"], row["exposure"]) and v.exposure == 2.0]
+        assert metrics["ldr_exposure_fitted"] == len(fitted) == 2
+        with pipeline.evaluating():
+            for row, view in fitted:  # fitted: at least as close to its photo as at the listed (placeholder) time
+                listed = pipeline.render(view.camera, view.exposure).ldr
+                assert row["ldr_psnr"] >= psnr(listed, view.image) - 1e-9
 
     def test_renders_written_once_per_camera(self, tmp_path):
         scene = known_scene()

@@ -99,8 +99,9 @@ class TestLosses:
         assert mse_loss(torch.zeros(3), torch.full((3,), 2.0)).item() == pytest.approx(4.0)
 
     def test_pixel_batches_fall_back_to_l1(self):
-        pred, target = torch.zeros(10, 3), torch.full((10, 3), 0.3)
-        assert photometric_loss(pred, target, "l1_dssim").item() == pytest.approx(0.3)
+        pred, target = torch.full((10, 3), 0.5), torch.full((10, 3), 0.3)
+        pred[0, 0] = 0.1  # |0.1 - 0.3| = 0.2 like the others: only a true difference gives 0.2 everywhere
+        assert photometric_loss(pred, target, "l1_dssim").item() == pytest.approx(0.2)
 
     def test_zero_for_identical(self):
         image = torch.rand(12, 12, 3)
