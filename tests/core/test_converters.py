@@ -1,3 +1,5 @@
+import copy
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -47,6 +49,18 @@ class TestPerChannelReluMlp:
         torch.testing.assert_close(outputs[0], outputs[1], rtol=1e-5, atol=1e-5)
         for got, want in zip(*grads):
             torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-4)
+
+    def test_float64_inputs_keep_float64_accuracy(self):
+        # The interval tables are prefix sums over 128 units: in float32 they would be off by ~1e-7.
+        torch.manual_seed(4)
+        first, second = PerChannelLinear(1, 128), PerChannelLinear(128, 3)
+        with torch.no_grad():
+            first.weight[0, 0, 0] = 1.0  # a unit of slope exactly 1 still switches at its kink
+            first.bias[0, 0, 0] = -0.25
+        x = torch.cat([torch.rand(3, 500, dtype=torch.float64) * 4 - 2,
+                       torch.full((3, 2), 0.25, dtype=torch.float64) + torch.tensor([-1e-3, 1e-3])], 1)
+        exact = matrix_form(x, copy.deepcopy(first).double(), copy.deepcopy(second).double())
+        torch.testing.assert_close(per_channel_relu_mlp(x, first, second), exact, rtol=1e-12, atol=1e-12)
 
     def test_inputs_on_a_kink_are_continuous(self):
         first, second = PerChannelLinear(1, 8), PerChannelLinear(8, 2)
@@ -135,6 +149,16 @@ class TestAblationConverters:
         x = torch.rand(4, 3, dtype=torch.float64, requires_grad=True)
         assert module(x).shape == (4, 3)
         assert torch.autograd.gradcheck(module, (x,))
+
+    @pytest.mark.parametrize(("cls", "activation"), [(PlainL2H, F.softplus), (PerChannelCRF, torch.sigmoid)])
+    def test_per_channel_linear_relu_linear_then_activation(self, cls, activation):
+        converter = cls(hidden=6)
+        assert converter.hidden.weight.shape == (3, 1, 6) and converter.out.weight.shape == (3, 6, 1)
+        x = torch.rand(5, 3, dtype=torch.float64) * 4 - 2
+        hidden, out = converter.hidden, converter.out
+        expected = torch.stack([activation(F.relu(x[:, c:c + 1] @ hidden.weight[c].double() + hidden.bias[c].double())
+                                           @ out.weight[c].double() + out.bias[c].double())[:, 0] for c in range(3)], -1)
+        torch.testing.assert_close(converter(x), expected)
 
     def test_plain_l2h_has_no_residual_structure(self):
         names = {name for name, _ in PlainL2H(4).named_parameters()}
