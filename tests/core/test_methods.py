@@ -10,6 +10,7 @@ from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfi
                                      build_method, method_names)
 from mono_hdr_plugin.registry import RegistryError
 from mono_hdr_plugin.metrics import normalise_hdr
+from mono_hdr_plugin.validation import FlagError, check_flags
 
 
 def fake_features(pixels: int = 12, primitives: int = 5, seed: int = 0):
@@ -163,3 +164,17 @@ def test_every_method_builds():
         assert build_method(MethodConfig(method=name), "mse").config.method == name
     with pytest.raises(RegistryError, match="no method named 'nope'; available: mono, mlp-l2h"):
         build_method(MethodConfig(method="nope"), "mse")
+
+
+class TestMethodFlags:
+    @pytest.mark.parametrize(("name", "value", "accepted"), [
+        ("hidden", 1, True), ("hidden", 0, False),
+        ("unit_exposure_value", 0.999, True), ("unit_exposure_value", 1.0, False),
+        ("unit_exposure_value", 0.0, False), ("unit_exposure_value", 1.5, False)])
+    def test_rules_at_their_bounds(self, name, value, accepted):
+        config = MethodConfig(**{name: value})
+        if accepted:
+            check_flags(config)
+        else:
+            with pytest.raises(FlagError, match=name.replace("_", "-")):
+                check_flags(config)

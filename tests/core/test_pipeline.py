@@ -1,9 +1,12 @@
 """Pipeline: optimiser groups and their schedules, chunked rendering, eval mode, delegation."""
 
+import math
+
 import pytest
 import torch
 
 from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
+from mono_hdr_plugin.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig
 from mono_hdr_plugin.pipeline import Pipeline
 
@@ -23,6 +26,12 @@ class TestParameterGroups:
         assert groups[0]["params"] == [pipeline.backbone.unused]
         assert {id(p) for p in groups[1]["params"]} == {id(p) for p in pipeline.method.parameters()}
         assert groups[1]["lr"] == 5e-4
+
+    def test_converter_rate_from_the_flag_else_from_the_backbone(self, monkeypatch):
+        assert pipeline_for(converter_lr=0.123).parameter_groups()[1]["lr"] == 0.123
+        monkeypatch.setattr(KnownRenderBackbone, "converter_lr", 0.0321)
+        assert pipeline_for().parameter_groups()[1]["lr"] == 0.0321
+        assert pipeline_for(converter_lr=0.123).parameter_groups()[1]["lr"] == 0.123
 
     def test_a_name_used_twice_is_refused(self, monkeypatch):
         pipeline = pipeline_for()
@@ -76,6 +85,34 @@ class TestRender:
         torch.testing.assert_close(features.colors.reshape(16, 16, 3).double(), torch.from_numpy(ldr))
         torch.testing.assert_close(output.hdr.double(), torch.from_numpy(hdr), rtol=1e-5, atol=1e-6)
         assert output.ldr_from_hdr is not None
+
+
+class TestViewExposures:
+    """With per-view exposures, training view 1 (one stop above the reference view 0) renders at its own."""
+
+    def pipeline(self, method: str) -> Pipeline:
+        scene = known_scene()
+        exposures = ViewExposures(torch.tensor([0.0, math.log(2.0)]), 0, 0.5, srgb_response(), learn=False)
+        torch.manual_seed(0)  # untrained converters: images that depend on the exposure
+        return Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method), scene.scene_info(),
+                               exposures)
+
+    def test_methods_that_take_exposure_render_at_the_views_time(self):
+        pipeline = self.pipeline("hdr-gs")
+        features = pipeline.backbone.render_ldr_features(camera_at(0.5))
+        output = pipeline._lift(features, 0.5, 1, training=True)
+        torch.testing.assert_close(output.ldr, pipeline.method.render(features, 1.0).ldr)  # 0.5 s x 2
+        assert not torch.allclose(output.ldr, pipeline.method.render(features, 0.25).ldr, atol=1e-4)
+
+    def test_mono_brightens_its_images_by_the_views_ratio(self):
+        pipeline = self.pipeline("mono")
+        features = pipeline.backbone.render_ldr_features(camera_at(0.5))
+        output = pipeline._lift(features, 0.5, 1, training=True)
+        plain = pipeline.method.render(features, 0.5)
+        brighter = lambda image: pipeline.exposures.brighten(image, torch.tensor(math.log(2.0)))  # noqa: E731
+        torch.testing.assert_close(output.ldr, brighter(plain.ldr))
+        torch.testing.assert_close(output.ldr_from_hdr, brighter(plain.ldr_from_hdr))
+        assert not torch.allclose(output.ldr, plain.ldr, atol=1e-3)
 
 
 class TestModes:
