@@ -7,7 +7,7 @@ import torch
 
 from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
 from mono_hdr_plugin.exposure import ViewExposures, srgb_response
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig
+from mono_hdr_plugin.methods import HdrMethod, MethodConfig, build_method
 from mono_hdr_plugin.pipeline import Pipeline
 
 
@@ -113,6 +113,59 @@ class TestViewExposures:
         torch.testing.assert_close(output.ldr, brighter(plain.ldr))
         torch.testing.assert_close(output.ldr_from_hdr, brighter(plain.ldr_from_hdr))
         assert not torch.allclose(output.ldr, plain.ldr, atol=1e-3)
+
+
+class CoarseAndFineBackbone(KnownRenderBackbone):
+    """Known renders with an auxiliary pass at half the brightness (as NeRF's coarse network)."""
+
+    def render_ldr_features(self, camera):
+        fine = super().render_ldr_features(camera)
+        coarse = super().render_ldr_features(camera)
+        coarse.colors = 0.5 * coarse.colors
+        fine.auxiliary = [coarse]
+        return fine
+
+
+class TestAuxiliaryRenders:
+    def pipeline(self, exposures=None) -> Pipeline:
+        scene = known_scene()
+        torch.manual_seed(0)
+        return Pipeline("known-render", CoarseAndFineBackbone(KnownRenderConfig(), scene.scene_info()),
+                        build_method(MethodConfig(), "mse"), exposures)
+
+    def test_training_forward_renders_the_auxiliary_pass_and_a_render_does_not(self):
+        pipeline = self.pipeline()
+        camera = camera_at(0.0)
+        features, output = pipeline(camera, 0.5)
+        torch.testing.assert_close(output.auxiliary_ldr[0], pipeline.method(features.auxiliary[0], 0.5).ldr)
+        assert len(output.auxiliary_ldr) == 1 and pipeline._lift(features, 0.5, None, training=False).auxiliary_ldr == []
+
+    def test_the_auxiliary_pass_is_brightened_like_the_image(self):
+        exposures = ViewExposures(torch.tensor([0.0, math.log(2.0)]), 0, 0.5, srgb_response(), learn=False)
+        pipeline = self.pipeline(exposures)
+        features, output = pipeline(camera_at(0.0), 0.5, view=1)
+        plain = pipeline.method(features.auxiliary[0], 0.5).ldr
+        torch.testing.assert_close(output.auxiliary_ldr[0], exposures.brighten(plain, torch.tensor(math.log(2.0))))
+
+
+class SplatDepthBackbone(KnownRenderBackbone):
+    """Known renders whose depth costs an extra pass (as 3DGS's): extras "render_depth", no "depth"."""
+
+    def render_ldr_features(self, camera):
+        features = super().render_ldr_features(camera)
+        features.extras["render_depth"] = lambda: torch.full(camera.output_shape, 2.5)
+        return features
+
+
+class TestDepth:
+    def test_depth_only_when_asked_where_it_costs_a_pass(self):
+        scene = known_scene()
+        pipeline = Pipeline("known-render", SplatDepthBackbone(KnownRenderConfig(), scene.scene_info()),
+                            build_method(MethodConfig(), "mse"))
+        with pipeline.evaluating():
+            assert pipeline.render(camera_at(0.0), 0.5).depth is None
+            depth = pipeline.render(camera_at(0.0), 0.5, with_depth=True).depth
+        assert depth.shape == (16, 16) and torch.all(depth == 2.5)
 
 
 class TestModes:
