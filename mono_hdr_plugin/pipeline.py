@@ -174,7 +174,7 @@ class Pipeline(nn.Module):
         """A whole image whose LDR is brightened to match the photo `image` [H, W, 3] as well as one
         exposure can: for views whose exposure is unknown (needs `exposures`)."""
         output = self.render(camera, float(self.exposures.reference_exposure))
-        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image)).clamp(0, 1)
+        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image))  # in [0, 1]
         return output
 
     @contextlib.contextmanager
