@@ -1,6 +1,7 @@
 """One training step in detail: seeds, which views get HDR, pixel batches, the first Adam step,
 the non-finite gradient guard, what the step records and what it tells the backbone."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -34,6 +35,25 @@ class TestHdrViewSelection:
         selected = hdr_supervised_views(views, ratio)
         assert len(selected) == views
         assert [i for i, keep in enumerate(selected) if keep] == chosen
+
+
+class TestLearnedExposures:
+    def test_a_step_leaves_the_exposures_of_views_it_does_not_train_alone(self, tmp_path, voxel_scene):
+        # One tensor per view, and gradients set to None between steps: Adam skips the views a step
+        # does not see (zeroed gradients would let their momentum carry them on).
+        unknown = [view.name for view in voxel_scene.train]
+        scene = dataclasses.replace(voxel_scene, metadata={**voxel_scene.metadata, "unknown_exposures": unknown})
+        trainer = voxel_trainer(tmp_path, scene)
+        exposures = trainer.pipeline.exposures
+        first, second = [v for v in range(len(scene.train)) if v != int(exposures.reference)][:2]
+        trainer.view_order = [second, first]  # popped from the end: `first` trains first
+        start = exposures.relative_exposures()
+        trainer.train_step()
+        after_one = exposures.relative_exposures()
+        trainer.train_step()
+        after_two = exposures.relative_exposures()
+        assert after_one[first] != start[first] and after_one[second] == start[second]
+        assert after_two[first] == after_one[first] and after_two[second] != after_one[second]
 
 
 class TestInitialisation:
