@@ -49,11 +49,6 @@ class ProjectedGaussians:
     height: int
     backend: Backend
 
-    @property
-    def count(self) -> int:
-        """N, the number of Gaussians projected (visible or not)."""
-        return self.radii.shape[0]
-
 
 def _camera_arguments(camera: Camera) -> tuple:
     if camera.pixels is not None:
