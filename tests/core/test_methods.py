@@ -178,3 +178,7 @@ class TestMethodFlags:
         else:
             with pytest.raises(FlagError, match=name.replace("_", "-")):
                 check_flags(config)
+
+    def test_converter_rate_given_or_the_official(self):
+        assert build_method(MethodConfig(converter_lr=0.123), "mse").parameter_groups()[0]["lr"] == 0.123
+        assert build_method(MethodConfig(), "mse").parameter_groups()[0]["lr"] == 5e-4  # both official codes
