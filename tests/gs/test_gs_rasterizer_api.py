@@ -58,12 +58,13 @@ class TestPlainSums:
 
 
 class TestInputs:
-    def test_strided_and_double_inputs_render_as_contiguous_float(self):
+    @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+    def test_strided_and_double_inputs_render_as_contiguous_float(self, dtype):
         camera = make_camera()
         scene = random_gaussians(80, seed=5)
-        wide = {k: torch.stack([v, torch.zeros_like(v)], 1).double() for k, v in scene.items()}
-        strided = {k: v[:, 0] for k, v in wide.items()}  # every other row in memory, float64
-        assert not strided["means"].is_contiguous() and strided["means"].dtype == torch.float64
+        wide = {k: torch.stack([v, torch.zeros_like(v)], 1).to(dtype) for k, v in scene.items()}
+        strided = {k: v[:, 0] for k, v in wide.items()}  # every other row in memory (a float32 one stays strided)
+        assert not strided["means"].is_contiguous() and strided["means"].dtype == dtype
         double_camera = Camera(camera.c2w.double(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
                                camera.height, camera.near)
         image, alpha, _ = render_gaussians(*(strided[k] for k in PARAMS), double_camera)
