@@ -23,8 +23,7 @@ class OccupancyAlong(TrainingHook):
     def after_step(self, trainer, record) -> None:
         if trainer.step % self.every and not trainer.finished:
             return
-        grid = trainer.backbone.occupancy
-        kept = float(grid.occupied.float().sum() / grid.seen.float().sum())
+        kept = trainer.backbone.statistics()["occupied_fraction"]
         metrics = trainer.evaluate() if trainer.step % self.evaluate_every == 0 or trainer.finished else {}
         psnr = "" if not metrics else f"  HDR {metrics['hdr_psnr']:.2f} dB  LDR {metrics['ldr_psnr']:.2f} dB"
         print(f"step {trainer.step:5d}  occupied {100 * kept:5.1f} % of seen cells{psnr}", flush=True)

@@ -73,7 +73,8 @@ def main() -> None:
         execute(specs, budget, store, args.out / "runs", ExecutorConfig(),
                 on_row=lambda row: write_report(store, args.out / "sweep.md"))
     finally:
-        write_report(store, args.out / "sweep.md") if store.rows else None
+        if store.rows:
+            write_report(store, args.out / "sweep.md")
 
 
 if __name__ == "__main__":

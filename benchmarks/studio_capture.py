@@ -206,6 +206,10 @@ def run(config: BenchConfig) -> dict:
     return results
 
 
+def percent_pair(maximum: float, median: float) -> str:
+    return f"{100 * maximum:.2f} % / {100 * median:.2f} %"
+
+
 def markdown(results: dict) -> str:
     perfect = results["perfect"]["held_out"]["hdr_psnr"]
     lines = [f"# Studio capture, end to end ({results['config']['scene']}, {results['config']['resolution']} px, "
@@ -217,10 +221,9 @@ def markdown(results: dict) -> str:
         merges = [row["hdr_psnr"] for row in capture["merges"]]
         exposures = capture["exposures"]
         error = "-" if exposures is None else (
-            f"{100 * exposures['max_error']:.2f} % / {100 * exposures['median_error']:.2f} % (learned; measured "
-            f"from the photos before training: {100 * exposures['initial_max_error']:.2f} % / "
-            f"{100 * exposures['initial_median_error']:.2f} %)" if exposures["learned"] else
-            f"{100 * exposures['max_error']:.2f} % / {100 * exposures['median_error']:.2f} % (EXIF)")
+            f"{percent_pair(exposures['max_error'], exposures['median_error'])} (learned; measured from the photos "
+            f"before training: {percent_pair(exposures['initial_max_error'], exposures['initial_median_error'])})"
+            if exposures["learned"] else f"{percent_pair(exposures['max_error'], exposures['median_error'])} (EXIF)")
         psnr = capture["held_out"]["hdr_psnr"]
         lines.append(f"| {variant} | {capture['photos']} ({capture['placed']} placed) | {capture['hdr_views']} | "
                      f"{min(merges):.2f} / {np.mean(merges):.2f} | {error} | {psnr:.2f} | {perfect - psnr:+.2f} |")

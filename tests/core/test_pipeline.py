@@ -87,15 +87,19 @@ class TestRender:
         assert output.ldr_from_hdr is not None
 
 
+def one_stop_apart() -> ViewExposures:
+    """Training view 1 one stop above the reference view 0 (0.5 s), nothing learned."""
+    return ViewExposures(torch.tensor([0.0, math.log(2.0)]), 0, 0.5, srgb_response(), learn=False)
+
+
 class TestViewExposures:
     """With per-view exposures, training view 1 (one stop above the reference view 0) renders at its own."""
 
     def pipeline(self, method: str) -> Pipeline:
         scene = known_scene()
-        exposures = ViewExposures(torch.tensor([0.0, math.log(2.0)]), 0, 0.5, srgb_response(), learn=False)
         torch.manual_seed(0)  # untrained converters: images that depend on the exposure
         return Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method), scene.scene_info(),
-                               exposures)
+                               one_stop_apart())
 
     def test_methods_that_take_exposure_render_at_the_views_time(self):
         pipeline = self.pipeline("hdr-gs")
@@ -141,7 +145,7 @@ class TestAuxiliaryRenders:
         assert len(output.auxiliary_ldr) == 1 and pipeline._lift(features, 0.5, None, training=False).auxiliary_ldr == []
 
     def test_the_auxiliary_pass_is_brightened_like_the_image(self):
-        exposures = ViewExposures(torch.tensor([0.0, math.log(2.0)]), 0, 0.5, srgb_response(), learn=False)
+        exposures = one_stop_apart()
         pipeline = self.pipeline(exposures)
         features, output = pipeline(camera_at(0.0), 0.5, view=1)
         plain = pipeline.method(features.auxiliary[0], 0.5).ldr

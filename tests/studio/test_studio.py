@@ -97,9 +97,12 @@ class TestNoiseTexture:
         # Against the same scene with a flat grey floor (same seeds, so the same light paths):
         # the ratio of the two floors is the texture, which varies from pixel to pixel.
         textured = SCENES["textured-desk"]
-        flat = replace(textured, name="flat-desk",
-                       content=lambda: {**textured.content(), "floor": {**textured.content()["floor"],
-                                                                        "bsdf": diffuse(rgb(0.45))}})
+
+        def flat_floor() -> dict:
+            content = textured.content()
+            return {**content, "floor": {**content["floor"], "bsdf": diffuse(rgb(0.45))}}
+
+        flat = replace(textured, name="flat-desk", content=flat_floor)
         first, second = render_scene(textured), render_scene(flat)
         floor = first.hit & (np.abs(first.positions[..., 2]) < 1e-3)
         ratio = first.radiance[floor].mean(-1) / np.maximum(second.radiance[floor].mean(-1), 1e-9)
