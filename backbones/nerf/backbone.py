@@ -8,6 +8,7 @@ and renders LDR and HDR in one pass, as the official Mono-HDR-NeRF code does.
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from backbones.nerf._extension import load_extension
@@ -286,8 +287,8 @@ class NerfBackbone(Backbone):
                   "alpha": accumulation.reshape(output_shape)}
         composite = make_packed_composite(sample_weights[coloured], ray_indices, accumulation, output_shape,
                                           self.background)
-        return LdrFeatures(colors=torch.sigmoid(raw_color), raw_colors=raw_color, composite=composite,
-                           extras=extras)
+        colors = F.softplus(raw_color) if field.color_activation == "softplus" else torch.sigmoid(raw_color)
+        return LdrFeatures(colors=colors, raw_colors=raw_color, composite=composite, extras=extras)
 
     @staticmethod
     def _weights(density: Tensor, flat: Tensor, deltas: Tensor) -> Tensor:

@@ -14,6 +14,7 @@ import tyro
 from mono_hdr_plugin.validation import ANY_FINITE, FRACTION, NON_NEGATIVE, POSITIVE, at_least, between
 
 DensityActivation = Literal["relu", "softplus", "exp"]
+ColorActivation = Literal["sigmoid", "softplus"]
 
 
 @dataclass
@@ -73,6 +74,11 @@ class GridFieldConfig:
     """Features passed from the density MLP to the colour MLP."""
     dir_frequencies: int = 4
     """Positional-encoding frequencies of the viewing direction."""
+    color_activation: ColorActivation = "sigmoid"
+    """A sample's LDR colour from the colour MLP: sigmoid stops at 1, as the official MLP does;
+    softplus is unbounded above, as 3DGS's SH colours are, so a sample seen through a clipped pixel
+    can pass 1 and L2H-CC tells a light from a clipped wall (docs/nerf_profile.md, "Clipped
+    lights": 8-12 dB more HDR PSNR at 1500 steps on demo and lamp-room, not yet the default)."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
     density_scale: float = 32.0

@@ -2,7 +2,8 @@
 
 Positions are normalised so the scene box's longest side spans [-1, 1]; densities are per
 unit of that normalised length, which makes the hyper-parameters independent of scene scale.
-Raw colours are pre-sigmoid: the backbone's LDR colour is sigmoid(raw).
+Raw colours are pre-activation: the backbone's LDR colour is sigmoid(raw) (paper field) or the
+grid field's `color_activation` of it.
 """
 
 import torch
@@ -119,7 +120,7 @@ class GridRadianceField(nn.Module):
         return self.density_and_geometry(positions)[0]
 
     def color(self, geometry: Tensor, directions: Tensor) -> Tensor:
-        """geometry: [M, geo_features]; directions: [M, 3] unit. Returns raw (pre-sigmoid) colour [M, 3]."""
+        """geometry: [M, geo_features]; directions: [M, 3] unit. Returns raw (pre-activation) colour [M, 3]."""
         return self.color_mlp(torch.cat([geometry, positional_encoding(directions, self.config.dir_frequencies)], -1))
 
     def forward(self, positions: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:

@@ -4,6 +4,7 @@ from importlib.metadata import entry_points
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfBackbone, NerfConfig
 from backbones.nerf.rendering import compositing_weights
@@ -13,6 +14,7 @@ from mono_hdr_plugin.registry import get_backbone
 from nerf_scenes import orbit_camera, tiny_config
 
 FIELDS = ("paper", "cpu")
+COLOR_ACTIVATIONS = {"sigmoid": torch.sigmoid, "softplus": F.softplus}
 
 
 def filled_grid_backbone(scene) -> NerfBackbone:
@@ -146,15 +148,17 @@ class TestRenderLdrFeatures:
         assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
 
     @pytest.mark.parametrize("importance,columns", [(0, 16), (4, 4)])
-    def test_pixel_batch_shapes_cpu(self, scene, importance, columns):
+    @pytest.mark.parametrize("activation", ["sigmoid", "softplus"])
+    def test_pixel_batch_shapes_cpu(self, scene, importance, columns, activation):
         """importance 0: the marched samples (max_samples_per_ray columns); else importance_samples per ray."""
         backbone = NerfBackbone(tiny_config("cpu"), scene)
         backbone.config.field.importance_samples = importance
+        backbone.config.field.color_activation = activation
         features = backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8))
         packed = features.extras["ray_indices"].shape[0]
         assert 0 < packed <= 10 * columns
         assert features.colors.shape == features.raw_colors.shape == (packed, 3)
-        torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
+        torch.testing.assert_close(features.colors, COLOR_ACTIVATIONS[activation](features.raw_colors))
         assert features.composite(torch.rand(packed, 6)).shape == (10, 6)
         assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, columns)
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
@@ -272,7 +276,8 @@ def unpacked_render(backbone: NerfBackbone, camera: Camera) -> torch.Tensor:
                                              directions[:, None].expand_as(positions).reshape(-1, 3))
     density = torch.where(placed, density, torch.zeros_like(density)).reshape(t.shape)
     weights = compositing_weights(density, delta / backbone.scene_scale)
-    image = torch.einsum("ns,nsc->nc", weights, torch.sigmoid(raw_color).reshape(*t.shape, 3))
+    colors = COLOR_ACTIVATIONS[backbone.config.field.color_activation](raw_color)
+    image = torch.einsum("ns,nsc->nc", weights, colors.reshape(*t.shape, 3))
     return image.reshape(camera.height, camera.width, 3)
 
 
