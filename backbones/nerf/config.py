@@ -78,7 +78,7 @@ class GridFieldConfig:
     """A sample's LDR colour from the colour MLP: sigmoid stops at 1, as the official MLP does;
     softplus is unbounded above, as 3DGS's SH colours are, so a sample seen through a clipped pixel
     can pass 1 and L2H-CC tells a light from a clipped wall (docs/nerf_profile.md, "Clipped
-    lights": 8-12 dB more HDR PSNR at 1500 steps on demo and lamp-room, not yet the default)."""
+    lights": 4-12 dB more HDR PSNR at 1500 steps on demo and lamp-room, not yet the default)."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
     density_scale: float = 32.0
