@@ -30,6 +30,9 @@ class LdrFeatures:
         where they come with the colours (NeRF), "render_depth" (a function returning depth)
         where depth costs an extra pass (3DGS), 2D means, ...
     auxiliary: further renders supervised with the LDR loss only (NeRF's coarse network).
+    l2h_inputs: [..., P, 3] what L2H-CC reads instead of `colors`, where the backbone has a
+        coordinate of the same colours in which the HDR loss's gradient does not vanish (the NeRF
+        grid field's logits); None: `colors`.
     """
 
     colors: Tensor
@@ -37,6 +40,7 @@ class LdrFeatures:
     composite: Callable[[Tensor], Tensor]
     extras: dict[str, Any] = field(default_factory=dict)
     auxiliary: list["LdrFeatures"] = field(default_factory=list)
+    l2h_inputs: Tensor | None = None
 
 
 @dataclass

@@ -87,6 +87,9 @@ def channels_last(values: Tensor, shape: torch.Size) -> Tensor:
 class L2HColorConverter(nn.Module):
     """L2H-CC: LDR colour [..., 3] in [0, 1] -> HDR colour [..., 3] >= 0, per channel.
 
+    It also takes a monotone coordinate of the LDR colour in place of it, as the NeRF grid field's
+    logits (LdrFeatures.l2h_inputs): the same information, better conditioned near 1.
+
     latent = ReLU(W x); X = ReLU(.), S = ReLU(.), Y = linear; out = Softplus(x + X * S + Y).
     The three heads share one [hidden -> 3] product (columns X, S, Y), the same maths as
     three Linear(hidden -> 1) layers at a third of the memory traffic.

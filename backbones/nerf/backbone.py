@@ -288,7 +288,8 @@ class NerfBackbone(Backbone):
         composite = make_packed_composite(sample_weights[coloured], ray_indices, accumulation, output_shape,
                                           self.background)
         colors = F.softplus(raw_color) if field.color_activation == "softplus" else torch.sigmoid(raw_color)
-        return LdrFeatures(colors=colors, raw_colors=raw_color, composite=composite, extras=extras)
+        return LdrFeatures(colors=colors, raw_colors=raw_color, composite=composite, extras=extras,
+                           l2h_inputs=raw_color if field.l2h_input == "raw" else None)
 
     @staticmethod
     def _weights(density: Tensor, flat: Tensor, deltas: Tensor) -> Tensor:

@@ -15,6 +15,7 @@ from mono_hdr_plugin.validation import ANY_FINITE, FRACTION, NON_NEGATIVE, POSIT
 
 DensityActivation = Literal["relu", "softplus", "exp"]
 ColorActivation = Literal["sigmoid", "softplus"]
+L2hInput = Literal["raw", "activated"]
 
 
 @dataclass
@@ -79,6 +80,12 @@ class GridFieldConfig:
     softplus is unbounded above, as 3DGS's SH colours are, so a sample seen through a clipped pixel
     can pass 1 and L2H-CC tells a light from a clipped wall (docs/nerf_profile.md, "Clipped
     lights": 4-12 dB more HDR PSNR at 1500 steps on demo and lamp-room, not yet the default)."""
+    l2h_input: L2hInput = "raw"
+    """What L2H-CC reads per sample: raw, the colour before color_activation (the sigmoid's
+    logit), or activated, the LDR colour itself (the paper's NeRF). The two carry the same
+    information, but where the LDR loss holds samples near 1 (a clipped light, a clipped wall)
+    the sigmoid's gradient vanishes, so the HDR loss cannot lift a light above the wall through
+    it; through the logit it can (docs/nerf_profile.md, "Clipped lights")."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
     density_scale: float = 32.0

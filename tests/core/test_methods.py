@@ -43,6 +43,30 @@ class TestMonoHDR:
         torch.testing.assert_close(once.ldr, ldr_twice)
         torch.testing.assert_close(once.hdr, hdr_twice)
 
+    def test_l2h_reads_the_backbones_l2h_inputs_when_given(self):
+        features, calls, weights = fake_features()
+        features.l2h_inputs = features.raw_colors
+        method = MonoHDR(MethodConfig(), "mse")
+        out = method(features, exposure=1.0)
+        assert calls == [6]
+        torch.testing.assert_close(out.hdr, (weights @ method.l2h(features.raw_colors)).reshape(out.hdr.shape))
+        torch.testing.assert_close(out.ldr, (weights @ features.colors).reshape(out.ldr.shape))
+        assert not torch.allclose(out.hdr, (weights @ method.l2h(features.colors)).reshape(out.hdr.shape))
+
+    def test_logit_input_keeps_the_hdr_gradient_of_saturated_colours(self):
+        """A sample at logit 8 has an LDR colour of 0.9997: through the sigmoid the HDR loss can
+        hardly move it (sigmoid' = 3e-4), through the logit it can."""
+        raw = torch.full((1, 3), 8.0, requires_grad=True)
+        method = MonoHDR(MethodConfig(), "mse")
+        gradients = {}
+        for name, l2h_inputs in (("colors", None), ("logits", raw)):
+            features = LdrFeatures(colors=torch.sigmoid(raw), raw_colors=raw, composite=lambda values: values,
+                                   l2h_inputs=l2h_inputs)
+            raw.grad = None
+            method(features, 1.0).hdr.sum().backward()
+            gradients[name] = raw.grad.abs().sum().item()
+        assert gradients["logits"] > 100 * gradients["colors"]
+
     def test_h2l_applied_to_normalised_hdr(self):
         features, _, _ = fake_features()
         method = MonoHDR(MethodConfig(), "l1_dssim")

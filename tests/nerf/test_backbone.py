@@ -142,6 +142,7 @@ class TestRenderLdrFeatures:
         features = backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8))
         assert features.colors.shape == features.raw_colors.shape == (10, 16, 3)  # 8 coarse + 8 fine
         torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
+        assert features.l2h_inputs is None  # the paper's field: L2H-CC reads the LDR colours
         assert features.composite(torch.rand(10, 16, 6)).shape == (10, 6)
         assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, 16)
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
@@ -159,10 +160,16 @@ class TestRenderLdrFeatures:
         assert 0 < packed <= 10 * columns
         assert features.colors.shape == features.raw_colors.shape == (packed, 3)
         torch.testing.assert_close(features.colors, COLOR_ACTIVATIONS[activation](features.raw_colors))
+        assert features.l2h_inputs is features.raw_colors  # the default l2h_input, "raw"
         assert features.composite(torch.rand(packed, 6)).shape == (10, 6)
         assert features.extras["weights"].shape == features.extras["sample_distances"].shape == (10, columns)
         assert features.extras["depth"].shape == features.extras["alpha"].shape == (10,)
         assert (features.extras["alpha"] <= 1.0 + 1e-6).all()
+
+    def test_l2h_reads_the_activated_colours_when_asked(self, scene):
+        backbone = NerfBackbone(tiny_config("cpu"), scene)
+        backbone.config.field.l2h_input = "activated"
+        assert backbone.render_ldr_features(orbit_camera().with_pixels(torch.rand(10, 2) * 8)).l2h_inputs is None
 
     @pytest.mark.parametrize("field", FIELDS)
     def test_full_image_shapes(self, scene, field):
