@@ -10,7 +10,7 @@ preset; every variant runs on every scene given, with Mono-HDR and both baseline
 """
 
 import argparse
-import dataclasses
+import copy
 import json
 import os
 import time
@@ -19,34 +19,28 @@ from pathlib import Path
 import torch
 
 from backbones.gs import GaussianBackbone
+from mono_hdr_plugin.bench.runs import parse_override, set_override
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.train import Trainer, train_config_for
 
 
-def parse_variant(text: str) -> tuple[str, dict]:
-    """'base' or 'name=value,strategy.name=value,...' (values parsed as JSON, else strings)."""
+def parse_variant(text: str) -> tuple[str, tuple[tuple[str, object], ...]]:
+    """'base' or 'name=value,strategy.name=value,...': overrides of the backbone config."""
     if text == "base":
-        return text, {}
-    overrides = {}
-    for item in text.split(","):
-        key, value = item.split("=", 1)
-        try:
-            overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[key] = value
-    return text, overrides
+        return text, ()
+    return text, tuple(parse_override(item) for item in text.split(","))
 
 
-def configured(preset: str, overrides: dict):
-    config = GaussianBackbone.presets()[preset]
-    strategy = {k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith("strategy.")}
-    plain = {k: v for k, v in overrides.items() if not k.startswith("strategy.")}
-    return dataclasses.replace(config, **plain, strategy=dataclasses.replace(config.strategy, **strategy))
+def configured(preset: str, overrides: tuple[tuple[str, object], ...]):
+    config = copy.deepcopy(GaussianBackbone.presets()[preset])
+    for path, value in overrides:
+        set_override(config, path, value)
+    return config
 
 
-def run(scene_name: str, method: str, preset: str, overrides: dict, steps: int, eval_every: int, eval_views: int,
+def run(scene_name: str, method: str, preset: str, overrides: tuple, steps: int, eval_every: int, eval_views: int,
         out: Path, seed: int = 0) -> dict:
     scene = load_scene(DataConfig(scene=scene_name))
     backbone = configured(preset, overrides)
@@ -65,7 +59,7 @@ def run(scene_name: str, method: str, preset: str, overrides: dict, steps: int, 
             curve.append({"steps": trainer.step, "cpu_seconds": cpu, "gaussians": trainer.backbone.num_gaussians,
                           **{k: metrics[k] for k in ("hdr_psnr", "hdr_psnr_gt_max", "hdr_ssim", "ldr_psnr", "ldr_ssim")}})
             print(scene_name, method, curve[-1], flush=True)
-    return {"scene": scene_name, "method": method, "preset": preset, "overrides": overrides, "curve": curve,
+    return {"scene": scene_name, "method": method, "preset": preset, "overrides": dict(overrides), "curve": curve,
             "cpu_ms_per_step": 1000 * cpu / steps}
 
 

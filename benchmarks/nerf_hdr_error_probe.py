@@ -21,14 +21,13 @@ Writes mu-law PNGs of the first test view (prediction and GT, own max) to --out.
 """
 
 import argparse
-import ast
 import json
 import tempfile
 from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene
+from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene, parse_override
 from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.metrics import mu_law, psnr, tone_mapped_pair
 
@@ -47,15 +46,6 @@ def error_split(pred_hdr: torch.Tensor, gt_hdr: torch.Tensor) -> dict[str, float
     return {"hdr_psnr": psnr(pred, gt), "peak_ratio": float(gt_room / pred_room),
             "room_matched_psnr": psnr(matched, gt), "room_psnr": psnr(pred[room], gt[room]),
             "room_share": float(room.double().mean())}
-
-
-def parse_setting(text: str) -> tuple[str, object]:
-    """KEY=VALUE with VALUE a Python literal, else a string."""
-    key, _, value = text.partition("=")
-    try:
-        return key, ast.literal_eval(value)
-    except (ValueError, SyntaxError):
-        return key, value
 
 
 def probe(method: str, scene_name: str, steps: int, out: Path, overrides: tuple = (), label: str = "") -> dict[str, float]:
@@ -86,7 +76,7 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="overrides of the run's config, e.g. backbone.field.color_activation=sigmoid")
     args = parser.parse_args()
-    overrides = tuple(parse_setting(text) for text in args.set)
+    overrides = tuple(parse_override(text) for text in args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     label = "".join(f"_{key.rsplit('.', 1)[-1]}-{value}" for key, value in overrides)
     results = {}

@@ -14,22 +14,17 @@ OUT/sweep.md (HDR / LDR PSNR at each evaluation, step time, share of seen cells 
 """
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
+from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override
 
 
 def parse_variant(text: str) -> tuple[tuple[str, object], ...]:
-    """'base' -> (); 'name=value,name=value' -> overrides of backbone.field (values parsed as JSON)."""
+    """'base' -> (); 'name=value,name=value' -> overrides of backbone.field."""
     if text == "base":
         return ()
-    overrides = []
-    for item in text.split(","):
-        name, value = item.split("=", 1)
-        overrides.append((f"backbone.field.{name}", json.loads(value)))
-    return tuple(overrides)
+    return tuple(parse_override(f"backbone.field.{item}") for item in text.split(","))
 
 
 def variant_name(spec: dict) -> str:

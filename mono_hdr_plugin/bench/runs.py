@@ -9,6 +9,7 @@ finished row is stored at once: an interrupted sweep resumes from its finished r
 
 import dataclasses
 import functools
+import json
 import os
 import platform
 import resource
@@ -125,14 +126,29 @@ def cached_scene(name: str, exposure_index: int) -> SceneData:
     return load_scene(DataConfig(scene=name, exposure_index=exposure_index))
 
 
+def parse_override(text: str) -> tuple[str, Any]:
+    """'dotted.path=VALUE' -> (path, value): VALUE read as JSON (3, 0.5, true, [1, 2], "x"), else
+    kept as the bare string (softplus), as the benchmark scripts' --set / --variant take it."""
+    path, equals, value = text.partition("=")
+    if not (path and equals):
+        raise ValueError(f"override {text!r}: expected PATH=VALUE, e.g. backbone.field.l2h_input=raw")
+    try:
+        return path, json.loads(value)
+    except json.JSONDecodeError:
+        return path, value
+
+
 def set_override(config: Any, path: str, value: Any) -> None:
     """config.<path> = value for a dotted path into nested dataclasses, refusing unknown names."""
     *parents, name = path.split(".")
     target = config
-    for part in parents:
-        target = getattr(target, part)
-    if not any(f.name == name for f in dataclasses.fields(target)):
-        raise ValueError(f"override {path!r}: {type(target).__name__} has no field {name!r}")
+    for depth, part in enumerate([*parents, name]):
+        names = [f.name for f in dataclasses.fields(target)] if dataclasses.is_dataclass(target) else []
+        if part not in names:
+            raise ValueError(f"override {path!r}: {type(target).__name__} has no field {part!r}"
+                             + (f" (its fields: {', '.join(names)})" if names else ""))
+        if depth < len(parents):
+            target = getattr(target, part)
     setattr(target, name, value)
 
 

@@ -11,7 +11,8 @@ from mono_hdr_plugin.bench import runs
 from mono_hdr_plugin.bench.curves import BenchCurvesConfig, bench_curves
 from mono_hdr_plugin.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
                                          seed_values, table_variants, tuning_trials, write_paper_report)
-from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, set_override
+from mono_hdr_plugin.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override,
+                                        set_override)
 from mono_hdr_plugin.registry import get_backbone
 
 
@@ -29,6 +30,37 @@ def finished(spec: RunSpec, hdr: float, ldr: float = 20.0) -> dict:
     final = {"hdr_psnr": hdr, "ldr_psnr": ldr, "hdr_ssim": 0.5, "ldr_ssim": 0.5, "hdr_psnr_gt_max": hdr - 5,
              "train_seconds": 10.0, "steps": 100}
     return {"key": spec.key, "status": "ok", "final": final, "curve": [final]}
+
+
+class TestOverrides:
+    @pytest.mark.parametrize("text,expected", [
+        ("backbone.field.min_resolution=24", ("backbone.field.min_resolution", 24)),
+        ("hdr.alpha=0.25", ("hdr.alpha", 0.25)),
+        ("backbone.field.color_activation=softplus", ("backbone.field.color_activation", "softplus")),
+        ('hdr.method="no-h2l"', ("hdr.method", "no-h2l")),
+        ("backbone.strategy.absgrad=true", ("backbone.strategy.absgrad", True)),
+        ("backbone.background=[0, 0.5, 1]", ("backbone.background", [0, 0.5, 1])),
+        ("hdr.method=a=b", ("hdr.method", "a=b")),
+    ])
+    def test_parse(self, text, expected):
+        assert parse_override(text) == expected
+
+    @pytest.mark.parametrize("text", ["softplus", "=3", ""])
+    def test_parse_refuses_text_without_a_path(self, text):
+        with pytest.raises(ValueError, match="PATH=VALUE"):
+            parse_override(text)
+
+    def test_set_reaches_nested_fields(self):
+        config = get_backbone("nerf").presets()["cpu"]
+        set_override(config, "field.l2h_input", "activated")
+        assert config.field.l2h_input == "activated"
+
+    @pytest.mark.parametrize("path,missing", [("field.no_such", "no_such"), ("method.l2h_input", "method"),
+                                              ("field.levels.deeper", "deeper")])
+    def test_set_names_the_unknown_part(self, path, missing):
+        config = get_backbone("nerf").presets()["cpu"]
+        with pytest.raises(ValueError, match=f"has no field {missing!r}"):
+            set_override(config, path, 1)
 
 
 class TestOrderingRule:
