@@ -33,14 +33,22 @@ def config_to_json(config: Any) -> str:
     return json.dumps(dataclasses.asdict(config), default=str)
 
 
+# Field metadata key: the value a config field takes when a saved config lacks it, where that
+# differs from its default; a field added with a new default behaviour needs it, so that a
+# checkpoint written before the field existed renders as it was trained.
+ABSENT_IN_SAVED_CONFIG = "absent_in_saved_config"
+
+
 def config_from_dict(cls: type, values: dict) -> Any:
-    """Rebuild a (nested) config dataclass from `dataclasses.asdict` output."""
+    """Rebuild a (nested) config dataclass from `dataclasses.asdict` output; a field the output
+    lacks (written before the field existed) takes its ABSENT_IN_SAVED_CONFIG value, else its default."""
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for field in dataclasses.fields(cls):
-        if field.name not in values:
-            continue
-        kwargs[field.name] = _coerce(hints[field.name], values[field.name])
+        if field.name in values:
+            kwargs[field.name] = _coerce(hints[field.name], values[field.name])
+        elif ABSENT_IN_SAVED_CONFIG in field.metadata:
+            kwargs[field.name] = field.metadata[ABSENT_IN_SAVED_CONFIG]
     return cls(**kwargs)
 
 
@@ -52,10 +60,10 @@ def _coerce(annotation: Any, value: Any) -> Any:
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
         options = [option for option in typing.get_args(annotation) if option is not type(None)]
-        if isinstance(value, dict):  # a union of config dataclasses: the one whose fields the values name
+        if isinstance(value, dict):  # a union of config dataclasses: the one that has every field the values name
             for option in options:
                 config = typing.get_args(option)[0] if typing.get_origin(option) is typing.Annotated else option
-                if dataclasses.is_dataclass(config) and set(value) == {f.name for f in dataclasses.fields(config)}:
+                if dataclasses.is_dataclass(config) and set(value) <= {f.name for f in dataclasses.fields(config)}:
                     return config_from_dict(config, value)
         return _coerce(options[0], value)
     if origin is typing.Annotated:
