@@ -16,3 +16,13 @@ for method in mono hdr-nerf; do
     pids+=($!)
 done
 for pid in "${pids[@]}"; do wait "$pid"; done  # fails if either run failed
+# both methods in one plot
+python - "$out" <<'PY'
+import json, sys
+from pathlib import Path
+from mono_hdr_plugin.bench.curves import plot_curves
+out = Path(sys.argv[1])
+rows = [row for method in ("mono", "hdr-nerf") for row in json.loads((out / method / "curves.json").read_text())["rows"].values()
+        if row["status"] == "ok"]
+plot_curves(rows, out / "curves.png")
+PY

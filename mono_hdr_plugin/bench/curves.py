@@ -81,6 +81,10 @@ def plot_curves(rows: list[dict], path: Path) -> None:
     """One row of panels per scene: HDR and LDR PSNR against training seconds, a line per backbone/method."""
     plt = pyplot()
     scenes = sorted({row["spec"]["scene"] for row in rows})
+    threads = sorted({row["threads"] for row in rows if "threads" in row})
+    plural = "" if threads == [1] else "s"
+    seconds_label = (f"training seconds ({' or '.join(map(str, threads))} torch thread{plural} a run)" if threads
+                     else "training seconds")
     figure, axes = plt.subplots(len(scenes), 2, figsize=(11, 3.6 * len(scenes)), squeeze=False)
     for axes_row, scene in zip(axes, scenes):
         for row in sorted((r for r in rows if r["spec"]["scene"] == scene), key=lambda r: label(r["spec"])):
@@ -89,7 +93,7 @@ def plot_curves(rows: list[dict], path: Path) -> None:
                 axis.plot(seconds, [point[key] for point in row["curve"]], marker="o", label=label(row["spec"]))
         for axis, title in zip(axes_row, ("HDR mu-law PSNR (dB)", "LDR PSNR (dB)")):
             axis.set_title(f"{scene}: {title}")
-            axis.set_xlabel("training seconds (2-core CPU)")
+            axis.set_xlabel(seconds_label)
             axis.grid(alpha=0.3)
         axes_row[0].legend(fontsize=7)
     figure.tight_layout()

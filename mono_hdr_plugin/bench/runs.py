@@ -252,8 +252,6 @@ class RowStore:
     rows: dict[str, dict] = field(default_factory=dict)
 
     def __post_init__(self):
-        import json  # noqa: PLC0415
-
         if self.path.is_file():
             earlier = json.loads(self.path.read_text())
             if earlier.get("settings") == self.settings:
