@@ -13,8 +13,8 @@ import argparse
 import json
 from pathlib import Path
 
-from mono_hdr_plugin.bench.curves import plot_curves
-from mono_hdr_plugin.bench.report import fmt, label
+from mono_hdr_plugin.apps.bench.curves import plot_curves
+from mono_hdr_plugin.apps.bench.report import fmt, label
 
 
 def finished_rows(path: Path) -> dict[tuple[str, str], dict]:

@@ -19,11 +19,12 @@ from pathlib import Path
 import torch
 
 from backbones.gs import GaussianBackbone
-from mono_hdr_plugin.bench.runs import parse_override, set_override
+from mono_hdr_plugin.apps.bench.runs import parse_override, set_override
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def parse_variant(text: str) -> tuple[str, tuple[tuple[str, object], ...]]:

@@ -21,9 +21,10 @@ from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.losses import l1_dssim_loss
-from mono_hdr_plugin.metrics import normalise_hdr
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.core.losses import l1_dssim_loss
+from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def cpu_median(function, repeats: int) -> float:

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene, parse_override
+from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene, parse_override
 from mono_hdr_plugin.data.io import write_png
-from mono_hdr_plugin.metrics import mu_law, psnr, tone_mapped_pair
+from mono_hdr_plugin.core.metrics import mu_law, psnr, tone_mapped_pair
 
 ROOM_FRACTION_OF_PEAK = 0.01
 

@@ -12,8 +12,8 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene
-from mono_hdr_plugin.train import TrainingHook
+from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
+from mono_hdr_plugin.training.hooks import TrainingHook
 
 
 class OccupancyAlong(TrainingHook):

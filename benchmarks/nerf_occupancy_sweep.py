@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mono_hdr_plugin.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override
+from mono_hdr_plugin.apps.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override
 
 
 def parse_variant(text: str) -> tuple[tuple[str, object], ...]:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, build_run, cached_scene
+from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
 
 PHASES = ("sampling", "field", "l2h/crf", "composite", "backward", "optimiser", "density grid", "other")
 

@@ -20,7 +20,7 @@ for pid in "${pids[@]}"; do wait "$pid"; done  # fails if either run failed
 python - "$out" <<'PY'
 import json, sys
 from pathlib import Path
-from mono_hdr_plugin.bench.curves import plot_curves
+from mono_hdr_plugin.apps.bench.curves import plot_curves
 out = Path(sys.argv[1])
 rows = [row for method in ("mono", "hdr-nerf") for row in json.loads((out / method / "curves.json").read_text())["rows"].values()
         if row["status"] == "ok"]

@@ -2,7 +2,7 @@
 
     python benchmarks/studio_capture.py --out outputs/studio_capture  # then copy results.{json,md} to benchmarks/results/studio_capture/
 
-1. The studio photographer (mono_hdr_plugin.studio.shoot) photographs the training cameras of a
+1. The studio photographer (mono_hdr_plugin.apps.studio.shoot) photographs the training cameras of a
    built-in scene as JPEGs with EXIF: auto-exposure per view, a bracket at every 4th viewpoint,
    sensor noise; and again without exposure EXIF. The scene's test cameras are never photographed.
 2. `process-data` turns each folder into a dataset (structure from motion, bracket merges; the
@@ -31,18 +31,19 @@ import tyro
 from rich.console import Console
 
 from backbones.gs import GaussianConfig
-from mono_hdr_plugin.bench.runs import run_facts
+from mono_hdr_plugin.apps.bench.runs import run_facts
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import read_exr, write_json
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.metrics import hdr_metrics
-from mono_hdr_plugin.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.studio.alignment import camera_into, similarity
-from mono_hdr_plugin.studio.render import render_scene
-from mono_hdr_plugin.studio.scenes import SCENES
-from mono_hdr_plugin.studio.shoot import ShootConfig, ShootResult, shoot
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.studio.alignment import camera_into, similarity
+from mono_hdr_plugin.apps.studio.render import render_scene
+from mono_hdr_plugin.apps.studio.scenes import SCENES
+from mono_hdr_plugin.apps.studio.shoot import ShootConfig, ShootResult, shoot
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 console = Console()
 

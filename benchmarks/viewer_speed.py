@@ -17,10 +17,10 @@ from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.camera_paths import viewer_from_camera
-from mono_hdr_plugin.evaluation import first_per_camera
-from mono_hdr_plugin.frames import load_model
-from mono_hdr_plugin.viewer import MIN_HEIGHT, MOVING_FRAME_SECONDS, ModelSnapshots, ViewerRenderer
+from mono_hdr_plugin.apps.camera_paths import viewer_from_camera
+from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.training.frames import load_model
+from mono_hdr_plugin.apps.viewer import MIN_HEIGHT, MOVING_FRAME_SECONDS, ModelSnapshots, ViewerRenderer
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ then print and plot how HDR quality grew with training time for each.
 import argparse
 from pathlib import Path
 
-from mono_hdr_plugin.bench.runs import RunBudget, RunSpec, run_row
+from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, run_row
 
 
 def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ...] = ("nerf", "gs"),

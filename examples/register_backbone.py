@@ -14,11 +14,11 @@ from typing import ClassVar
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.registry import register_backbone
-from mono_hdr_plugin.validation import POSITIVE, at_least
+from mono_hdr_plugin.core.registry import register_backbone
+from mono_hdr_plugin.core.validation import POSITIVE, at_least
 
 
 @dataclass
@@ -113,7 +113,8 @@ def make_capture(size: int = 24, views: int = 12, exposure: float = 0.5, seed: i
 
 
 def main() -> None:
-    from mono_hdr_plugin.train import Trainer, train_config_for
+    from mono_hdr_plugin.training.config import train_config_for
+    from mono_hdr_plugin.training.trainer import Trainer
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)

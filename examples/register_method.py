@@ -14,9 +14,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from mono_hdr_plugin.backbone import LdrFeatures
+from mono_hdr_plugin.core.backbone import LdrFeatures
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, register_method
-from mono_hdr_plugin.losses import LossKind
+from mono_hdr_plugin.core.losses import LossKind
 
 
 @register_method("tone-curve")
@@ -54,7 +54,8 @@ def main() -> None:
     from backbones.nerf import NerfBackbone
     from mono_hdr_plugin.data.config import DataConfig
     from mono_hdr_plugin.data.loading import load_scene
-    from mono_hdr_plugin.train import Trainer, train_config_for
+    from mono_hdr_plugin.training.config import train_config_for
+    from mono_hdr_plugin.training.trainer import Trainer
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200)

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from browser_screenshot import screenshot_when
-from mono_hdr_plugin.evaluation import first_per_camera
-from mono_hdr_plugin.frames import load_model
-from mono_hdr_plugin.render import render_exposure_sweep
-from mono_hdr_plugin.viewer import VIEWER_OUTPUTS, ModelSnapshots, Viewer, ViewerRenderer
+from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.training.frames import load_model
+from mono_hdr_plugin.apps.render import render_exposure_sweep
+from mono_hdr_plugin.apps.viewer import VIEWER_OUTPUTS, ModelSnapshots, Viewer, ViewerRenderer
 
 # Viser's warning that WebGL runs in software (true in a headless browser) covers the render.
 CLOSE_NOTIFICATIONS = "document.querySelectorAll('.mantine-Notification-root').forEach(n => n.remove())"

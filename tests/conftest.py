@@ -46,7 +46,7 @@ def tiny_variant(scene):
 @pytest.fixture(scope="session")
 def tiny_demo(studio_cache):
     """The demo scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
-    from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES
+    from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES
 
     return tiny_variant(next(scene for scene in BUILTIN_SCENES if scene.name == "demo"))
 
@@ -57,7 +57,7 @@ def tiny_builtin_scenes(request, monkeypatch):
     the real scenes take minutes to render. Slow tests see the real ones (and the user's cache)."""
     if request.node.get_closest_marker("slow"):
         return
-    from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES, SCENES
+    from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES, SCENES
 
     request.getfixturevalue("studio_cache")
     for scene in BUILTIN_SCENES:

@@ -50,26 +50,26 @@ WIRING = "tests/core/test_loss_wiring.py"
 QUICK_TRAIN_TESTS = ("tests/core/test_train.py", "-k", "not hdr_error_drops")
 KNOWN_ANSWER = "tests/core/test_evaluation_known_answer.py::TestEvaluateKnownAnswer"
 TARGETS = {
-    "metrics": Target("mono_hdr_plugin.metrics", "mono_hdr_plugin/metrics.py", (
+    "metrics": Target("mono_hdr_plugin.core.metrics", "mono_hdr_plugin/core/metrics.py", (
         "tests/core/test_metric_values.py", "tests/core/test_metrics.py", KNOWN_ANSWER)),
-    "losses": Target("mono_hdr_plugin.losses", "mono_hdr_plugin/losses.py", (
+    "losses": Target("mono_hdr_plugin.core.losses", "mono_hdr_plugin/core/losses.py", (
         "tests/core/test_metrics.py::TestLosses", "tests/core/test_method_details.py", f"{WIRING}::TestEveryLossSwitch")),
-    "converters": Target("mono_hdr_plugin.converters", "mono_hdr_plugin/converters.py", (
+    "converters": Target("mono_hdr_plugin.core.converters", "mono_hdr_plugin/core/converters.py", (
         "tests/core/test_converters.py", "tests/core/test_method_details.py", "tests/core/test_methods.py",
         KNOWN_ANSWER)),
     "methods": Target("mono_hdr_plugin.methods", "mono_hdr_plugin/methods.py", (
         "tests/core/test_methods.py", "tests/core/test_method_details.py", f"{WIRING}::test_defaults_are_the_papers",
         "tests/core/test_registry.py", f"{WIRING}::TestEveryLossSwitch", f"{WIRING}::TestWeightsByFiniteDifferences",
         KNOWN_ANSWER)),
-    "pipeline": Target("mono_hdr_plugin.pipeline", "mono_hdr_plugin/pipeline.py", (
+    "pipeline": Target("mono_hdr_plugin.training.pipeline", "mono_hdr_plugin/training/pipeline.py", (
         "tests/core/test_pipeline.py", "tests/core/test_train_step.py", f"{WIRING}::TestEveryLossSwitch",
         f"{WIRING}::TestHdrViewRatioRows", KNOWN_ANSWER, *QUICK_TRAIN_TESTS)),
-    "train-step": Target("mono_hdr_plugin.train", "mono_hdr_plugin/train.py", (
+    "train-step": Target("mono_hdr_plugin.training.trainer", "mono_hdr_plugin/training/trainer.py", (
         "tests/core/test_train_step.py", f"{WIRING}::TestEveryLossSwitch", f"{WIRING}::TestHdrViewRatioRows",
         f"{WIRING}::TestWeightsByFiniteDifferences", *QUICK_TRAIN_TESTS),
         scopes=("parse_view_ratio", "hdr_supervised_views", "Trainer.__init__", "Trainer._next_view",
                 "Trainer._batch", "Trainer._bad_tensors", "Trainer.train_step", "Trainer.evaluate")),
-    "evaluation": Target("mono_hdr_plugin.evaluation", "mono_hdr_plugin/evaluation.py", (KNOWN_ANSWER,)),
+    "evaluation": Target("mono_hdr_plugin.training.evaluation", "mono_hdr_plugin/training/evaluation.py", (KNOWN_ANSWER,)),
     "rasterizer": Target("backbones.gs.rasterizer", "backbones/gs/rasterizer.py", (
         "tests/gs/test_gs_rasterizer_api.py", "tests/gs/test_gs_rasterizer.py", "tests/gs/test_gs_edge_gradients.py")),
 }
@@ -282,15 +282,15 @@ def preload() -> None:
     rasteriser, then forget the project's own modules so each mutant imports them afresh."""
     sys.path[:0] = [str(ROOT), str(ROOT / "examples")]
     import pytest  # noqa: F401, PLC0415
-    import mono_hdr_plugin.cli  # noqa: F401, PLC0415
-    import mono_hdr_plugin.evaluation  # noqa: F401, PLC0415
-    import mono_hdr_plugin.train  # noqa: F401, PLC0415
+    import mono_hdr_plugin.apps.cli  # noqa: F401, PLC0415
+    import mono_hdr_plugin.training.evaluation  # noqa: F401, PLC0415
+    import mono_hdr_plugin.training.trainer  # noqa: F401, PLC0415
     from backbones.gs._extension import load_extension  # noqa: PLC0415
-    from mono_hdr_plugin.registry import BACKBONES  # noqa: PLC0415
+    from mono_hdr_plugin.core.registry import BACKBONES  # noqa: PLC0415
 
     BACKBONES.available()  # imports every backbone plugin and what it needs
     load_extension()
-    for optional in ("skimage.metrics", "hypothesis", "mono_hdr_plugin.studio.source"):
+    for optional in ("skimage.metrics", "hypothesis", "mono_hdr_plugin.apps.studio.source"):
         try:
             __import__(optional)
         except ImportError:

@@ -3,7 +3,7 @@
 from pathlib import Path
 from types import ModuleType
 
-from mono_hdr_plugin.cpp_extensions import load_cpp_extension
+from mono_hdr_plugin.core.cpp_extensions import load_cpp_extension
 
 SOURCE = Path(__file__).parent / "csrc" / "gs_raster.cpp"
 

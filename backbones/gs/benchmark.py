@@ -28,8 +28,8 @@ import torch
 from backbones.gs.model import GaussianBackbone, GaussianConfig
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
-from mono_hdr_plugin.backbone import SceneInfo
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.methods import MethodConfig, MonoHDR
 

@@ -14,9 +14,9 @@ from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import check_backend, project_gaussians, rasterize
 from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
-from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
-from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
+from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 
 @dataclass

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from backbones.gs import reference
 from backbones.gs._extension import load_extension
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.cameras import Camera
 
 Backend = Literal["kernel", "torch"]
 

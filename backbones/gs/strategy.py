@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from backbones.gs.reference import quaternion_to_rotation
-from mono_hdr_plugin.validation import NON_NEGATIVE, POSITIVE, at_least, between
+from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, at_least, between
 
 GAUSSIAN_PARAMETERS = ("means", "sh_dc", "sh_rest", "log_scales", "quats", "opacity_logits")
 """The per-Gaussian parameters of the backbone, first dimension N, in optimiser-group order."""

@@ -17,8 +17,8 @@ from backbones.nerf.fields import GridRadianceField, MlpRadianceField, Occupancy
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
-from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera
 
 class NerfBackbone(Backbone):
     """Neural radiance field: a grid field made for a CPU (preset cpu) or the official MLP (preset paper).

@@ -11,8 +11,8 @@ from typing import Annotated, ClassVar, Literal
 
 import tyro
 
-from mono_hdr_plugin.checkpoints import ABSENT_IN_SAVED_CONFIG
-from mono_hdr_plugin.validation import ANY_FINITE, FRACTION, NON_NEGATIVE, POSITIVE, at_least, between
+from mono_hdr_plugin.core.configs import ABSENT_IN_SAVED_CONFIG
+from mono_hdr_plugin.core.validation import ANY_FINITE, FRACTION, NON_NEGATIVE, POSITIVE, at_least, between
 
 DensityActivation = Literal["relu", "softplus", "exp"]
 ColorActivation = Literal["sigmoid", "softplus"]

@@ -12,7 +12,7 @@ from typing import Callable, Literal
 import numpy as np
 import torch
 
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.cameras import Camera
 
 ImageSource = Callable[[], np.ndarray]
 """Returns a float32 [H, W, 3] image when called (reads the file, or returns an array)."""

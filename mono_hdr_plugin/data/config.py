@@ -4,7 +4,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Literal
 
-from mono_hdr_plugin.validation import POSITIVE, SEED, between
+from mono_hdr_plugin.core.validation import POSITIVE, SEED, between
 
 
 @dataclass

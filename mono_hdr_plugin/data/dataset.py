@@ -9,8 +9,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from mono_hdr_plugin.backbone import SceneInfo
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.errors import DatasetError
 
 

@@ -14,7 +14,7 @@ from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
 from mono_hdr_plugin.data.sources import named_scene, scene_names
-from mono_hdr_plugin.validation import check_flags
+from mono_hdr_plugin.core.validation import check_flags
 
 
 def captured_scene(config: DataConfig) -> CapturedScene:

@@ -9,7 +9,7 @@ from typing import Any
 
 from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.registry import PluginRegistry, RegistryError
+from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 
 
 class SceneSource:

@@ -13,10 +13,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from mono_hdr_plugin.backbone import Backbone, LdrFeatures, SceneInfo
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.registry import register_backbone
+from mono_hdr_plugin.core.registry import register_backbone
 
 SIZE = 16
 

@@ -7,19 +7,19 @@ import pytest
 import torch
 
 import register_backbone  # registers "voxel-grid"
-from mono_hdr_plugin.bench import runs
-from mono_hdr_plugin.bench.curves import BenchCurvesConfig, bench_curves
-from mono_hdr_plugin.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
+from mono_hdr_plugin.apps.bench import runs
+from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves
+from mono_hdr_plugin.apps.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
                                          seed_values, table_variants, tuning_trials, write_paper_report)
-from mono_hdr_plugin.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override,
+from mono_hdr_plugin.apps.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override,
                                         set_override)
-from mono_hdr_plugin.registry import get_backbone
+from mono_hdr_plugin.core.registry import get_backbone
 
 
 @pytest.fixture
 def steps_of_50ms(monkeypatch):
     """Every training step takes 0.05 s of the trainer's clock: time budgets become exact."""
-    import mono_hdr_plugin.train as train_module
+    import mono_hdr_plugin.training.trainer as train_module
 
     clock = iter(0.05 * k for k in range(10**7))
     monkeypatch.setattr(train_module.time, "perf_counter", lambda: next(clock))
@@ -222,7 +222,7 @@ class TestBenchCurves:
 @pytest.mark.slow
 class TestRayExecutor:
     def test_quick_paper_on_ray_matches_sequential(self, tmp_path):
-        from mono_hdr_plugin.bench.paper import bench_paper
+        from mono_hdr_plugin.apps.bench.paper import bench_paper
 
         import ray  # the slow suite installs the `distributed` extra (make test-slow)
 

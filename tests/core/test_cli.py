@@ -6,7 +6,7 @@ import pytest
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from backbones.nerf import GridFieldConfig, MlpFieldConfig
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 
 
 class TestHelp:
@@ -76,7 +76,7 @@ class TestTrainEvalRender:
 
 class TestConsoleEntry:
     def test_user_error_is_one_line_and_exit_2(self, monkeypatch, capsys):
-        from mono_hdr_plugin import cli
+        from mono_hdr_plugin.apps import cli
 
         monkeypatch.setattr("sys.argv", ["mono-hdr", "eval", "--checkpoint", "/nonexistent/latest.pt"])
         monkeypatch.delenv("MONO_HDR_DEBUG", raising=False)
@@ -92,7 +92,7 @@ class TestPresets:
     @pytest.fixture
     def captured(self, monkeypatch):
         """The config `mono-hdr train` would train, without training."""
-        import mono_hdr_plugin.train as train_module
+        import mono_hdr_plugin.training.trainer as train_module
 
         seen = {}
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear,
+from mono_hdr_plugin.core.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear,
                                         PlainH2L, PlainL2H, per_channel_relu_mlp)
 
 

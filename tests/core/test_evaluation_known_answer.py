@@ -16,17 +16,18 @@ from PIL import Image
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from known_render import KnownRenderConfig, camera_at, expected_render, ground_truth, known_scene, zero_method
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.layouts import LAYOUTS
-from mono_hdr_plugin.evaluation import evaluate
-from mono_hdr_plugin.exposure import ViewExposures, srgb_response
+from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods import MethodConfig
-from mono_hdr_plugin.metrics import psnr
-from mono_hdr_plugin.pipeline import Pipeline
-from mono_hdr_plugin.train import build_trainer, train_config_for
+from mono_hdr_plugin.core.metrics import psnr
+from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import build_trainer
 
 LN_5001 = math.log(5001.0)
 HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
@@ -198,7 +199,7 @@ class TestEvaluateKnownAnswer:
         """With an LPIPS network (here one that measures mean absolute difference, as the real
         weights are not on this machine) each view gets LDR and HDR distances, averaged like the rest."""
         network = lambda a, b: (a - b).abs().mean()  # noqa: E731
-        monkeypatch.setattr("mono_hdr_plugin.evaluation.load_lpips", lambda: network)
+        monkeypatch.setattr("mono_hdr_plugin.training.evaluation.load_lpips", lambda: network)
         scene = known_scene()
         metrics = evaluate(known_pipeline(scene, "mono"), scene)
         expected_ldr, expected_hdr = [], []

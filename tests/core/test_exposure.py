@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from mono_hdr_plugin.exposure import (ExposureConfig, ViewExposures, build_view_exposures, choose_reference, decode,
+from mono_hdr_plugin.core.exposure import (ExposureConfig, ViewExposures, build_view_exposures, choose_reference, decode,
                                       encode, photometric_log_exposures, srgb_response)
 
 SRGB = torch.from_numpy(srgb_response()).float()
@@ -122,7 +122,7 @@ class TestPhotometricStart:
     def test_measures_the_ratios_of_a_lit_plane(self):
         """A textured plane photographed from four places at known exposures: the points' brightness
         across the photos gives the ratios."""
-        from mono_hdr_plugin.cameras import Camera, look_at
+        from mono_hdr_plugin.core.cameras import Camera, look_at
         from mono_hdr_plugin.data.dataset import View
 
         rng = np.random.default_rng(0)
@@ -192,7 +192,8 @@ class TestTraining:
 
     def run(self, voxel_scene, voxel_backbone_config, tmp_path, known: bool, method: str = "mono", steps: int = 6,
             learn: bool | None = None):
-        from mono_hdr_plugin.train import Trainer, train_config_for
+        from mono_hdr_plugin.training.config import train_config_for
+        from mono_hdr_plugin.training.trainer import Trainer
 
         config = train_config_for(type(voxel_backbone_config))(
             backbone=voxel_backbone_config, out=tmp_path / "run", quiet=True, max_steps=steps, save_renders=False,
@@ -232,7 +233,7 @@ class TestTraining:
         np.testing.assert_allclose(relative, np.array(self.exposures) / 0.6, rtol=0.03)
 
     def test_checkpoint_keeps_the_exposures(self, voxel_scene, voxel_backbone_config, tmp_path):
-        from mono_hdr_plugin.train import load_pipeline
+        from mono_hdr_plugin.training.trained import load_pipeline
 
         trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=False)
         trainer.train()

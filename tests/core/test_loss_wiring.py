@@ -21,8 +21,9 @@ import torch
 import register_backbone  # examples/, put on sys.path by conftest
 from backbones.gs import GaussianConfig
 from backbones.nerf import MlpFieldConfig, NerfConfig
-from mono_hdr_plugin.metrics import ssim
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.core.metrics import ssim
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 BASELINES = ("hdr-gs", "hdr-nerf")
 LN_5001 = math.log(5001.0)
@@ -264,7 +265,7 @@ def test_defaults_are_the_papers():
     """The recipe the README reports: alpha 0.6, beta 0.05 (3DGS loss) or 0.01 (NeRF loss), lambda 0.2,
     converters 1 -> 128 -> ... wide, their learning rate 5e-4; HDR-NeRF's unit exposure 0.5 at weight 0.5
     and a 500-step CRF warm-up."""
-    from mono_hdr_plugin.backbone import OFFICIAL_CONVERTER_LR
+    from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
     from mono_hdr_plugin.methods import DEFAULT_BETA, MethodConfig
 
     config = MethodConfig()

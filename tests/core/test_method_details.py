@@ -7,12 +7,12 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.backbone import LdrFeatures
-from mono_hdr_plugin.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear, PlainH2L,
+from mono_hdr_plugin.core.backbone import LdrFeatures
+from mono_hdr_plugin.core.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear, PlainH2L,
                                         PlainL2H)
-from mono_hdr_plugin.losses import photometric_loss
+from mono_hdr_plugin.core.losses import photometric_loss
 from mono_hdr_plugin.methods import HdrNerfBaseline, MethodConfig, Targets, build_method
-from mono_hdr_plugin.metrics import ssim
+from mono_hdr_plugin.core.metrics import ssim
 
 
 class TestConverterConstruction:

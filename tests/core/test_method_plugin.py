@@ -10,9 +10,10 @@ import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on s
 import register_method  # registers "tone-curve"
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.methods import METHODS, MethodConfig, build_method
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 TINY_BACKBONES = {
     "gs": lambda: GaussianConfig(random_init_points=300),

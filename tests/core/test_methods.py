@@ -5,12 +5,12 @@ import math
 import pytest
 import torch
 
-from mono_hdr_plugin.backbone import LdrFeatures
+from mono_hdr_plugin.core.backbone import LdrFeatures
 from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfig, MethodOutput, MonoHDR, Targets,
                                      build_method, method_names)
-from mono_hdr_plugin.registry import RegistryError
-from mono_hdr_plugin.metrics import normalise_hdr
-from mono_hdr_plugin.validation import FlagError, check_flags
+from mono_hdr_plugin.core.registry import RegistryError
+from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.core.validation import FlagError, check_flags
 
 
 def fake_features(pixels: int = 12, primitives: int = 5, seed: int = 0):

@@ -14,7 +14,7 @@ import pytest
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from mono_hdr_plugin.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, mu_law,
+from mono_hdr_plugin.core.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, mu_law,
                                      normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair)
 
 LN_5001 = math.log(5001.0)

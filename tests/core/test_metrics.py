@@ -5,8 +5,8 @@ import pytest
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from mono_hdr_plugin.losses import l1_dssim_loss, mse_loss, photometric_loss
-from mono_hdr_plugin.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair
+from mono_hdr_plugin.core.losses import l1_dssim_loss, mse_loss, photometric_loss
+from mono_hdr_plugin.core.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair
 
 
 class TestPsnr:
@@ -112,7 +112,7 @@ class TestLpips:
     def test_skipped_with_a_clear_reason_when_unavailable(self, monkeypatch):
         import builtins
 
-        from mono_hdr_plugin.metrics import LpipsUnavailable, load_lpips
+        from mono_hdr_plugin.core.metrics import LpipsUnavailable, load_lpips
 
         real_import = builtins.__import__
 

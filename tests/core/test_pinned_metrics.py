@@ -15,7 +15,8 @@ import torch
 import register_backbone
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),

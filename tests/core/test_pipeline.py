@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
-from mono_hdr_plugin.exposure import ViewExposures, srgb_response
+from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods import HdrMethod, MethodConfig, build_method
-from mono_hdr_plugin.pipeline import Pipeline
+from mono_hdr_plugin.training.pipeline import Pipeline
 
 
 def pipeline_for(method: str = "mono", **method_options) -> Pipeline:

@@ -5,12 +5,12 @@ from importlib.metadata import EntryPoint
 
 import pytest
 
-from mono_hdr_plugin import registry
-from mono_hdr_plugin.backbone import Backbone
+from mono_hdr_plugin.core import registry
+from mono_hdr_plugin.core.backbone import Backbone
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.data.sources import SCENE_SOURCES
 from mono_hdr_plugin.methods import METHODS
-from mono_hdr_plugin.registry import BACKBONES, PluginRegistry, RegistryError
+from mono_hdr_plugin.core.registry import BACKBONES, PluginRegistry, RegistryError
 
 
 @dataclass

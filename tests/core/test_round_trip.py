@@ -14,12 +14,14 @@ import torch
 import register_backbone  # examples/, put on sys.path by conftest
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.methods import method_names
-from mono_hdr_plugin.render import render_checkpoint
-from mono_hdr_plugin.evaluation import evaluate
-from mono_hdr_plugin.train import Trainer, load_pipeline, train_config_for
+from mono_hdr_plugin.apps.render import render_checkpoint
+from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trainer import Trainer
 
 BACKBONE_CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),

@@ -5,7 +5,7 @@ import json
 
 from backbones.gs.model import GaussianConfig
 from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
-from mono_hdr_plugin.checkpoints import config_from_dict, config_to_json
+from mono_hdr_plugin.core.configs import config_from_dict, config_to_json
 
 
 def saved(config) -> dict:

@@ -7,10 +7,12 @@ import pytest
 import torch
 
 import register_backbone  # examples/, put on sys.path by conftest
-from mono_hdr_plugin.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.methods import method_names
-from mono_hdr_plugin.evaluation import evaluate
-from mono_hdr_plugin.train import Trainer, hdr_supervised_views, load_pipeline, parse_view_ratio, train_config_for
+from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
+from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def make_config(tmp_path, backbone_config, **overrides):
@@ -90,7 +92,7 @@ class TestCheckpoints:
 
 class TestNanGuard:
     def test_bad_step_skipped_then_training_stops(self, tmp_path, voxel_scene, voxel_backbone_config, monkeypatch):
-        from mono_hdr_plugin.train import TrainingDiverged
+        from mono_hdr_plugin.training.trainer import TrainingDiverged
 
         trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=50, nan_patience=3), "voxel-grid",
                           voxel_scene)
@@ -154,7 +156,7 @@ class FakeClock:
 class TestTimeBudget:
     @pytest.fixture
     def half_second_steps(self, monkeypatch):
-        import mono_hdr_plugin.train as train_module
+        import mono_hdr_plugin.training.trainer as train_module
 
         clock = FakeClock(0.5)
         monkeypatch.setattr(train_module.time, "perf_counter", clock.perf_counter)

@@ -11,7 +11,8 @@ from skimage.metrics import peak_signal_noise_ratio
 
 import register_backbone  # examples/, put on sys.path by conftest
 from known_render import KnownRenderConfig, expected_render, known_scene
-from mono_hdr_plugin.train import Trainer, hdr_supervised_views, train_config_for
+from mono_hdr_plugin.training.config import hdr_supervised_views, train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def voxel_trainer(tmp_path, scene, **options) -> Trainer:

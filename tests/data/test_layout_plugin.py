@@ -8,13 +8,14 @@ import torch
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 import register_layout  # registers "scene-json"
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.layouts import LAYOUTS, detect_layout, writable_layouts, write_layout
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.studio.dataset import studio_captured_scene
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.apps.studio.dataset import studio_captured_scene
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 @pytest.fixture
@@ -35,7 +36,7 @@ class TestRegistration:
 
 class TestReadsWhatItWrote:
     def test_detected_and_equal_to_the_studio_scene(self, written, tiny_demo, monkeypatch):
-        from mono_hdr_plugin.studio import scenes
+        from mono_hdr_plugin.apps.studio import scenes
 
         assert detect_layout(written) == "scene-json"
         monkeypatch.setitem(scenes.SCENES, "demo", tiny_demo)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from mono_hdr_plugin.cameras import Camera, OPENGL_TO_OPENCV, look_at
+from mono_hdr_plugin.core.cameras import Camera, OPENGL_TO_OPENCV, look_at
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError, MissingFileError
@@ -16,7 +16,7 @@ from mono_hdr_plugin.data.layouts import detect_layout, read_layout, writable_la
 from mono_hdr_plugin.data.layouts.common import natural_key
 from mono_hdr_plugin.data.layouts.hdr_nerf_real import llff_to_opencv, opencv_to_llff
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.studio.commands import SynthConfig, synth
+from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 
 WIDTH, HEIGHT, VIEWS = 16, 12, 12
 EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
@@ -307,8 +307,8 @@ class TestPartialHdr:
 class TestSynth:
     @pytest.mark.parametrize("layout", ["hdr-nerf-synthetic", "hdr-gs"])
     def test_written_scene_reads_back_identically(self, tmp_path, tiny_demo, layout, monkeypatch):
-        from mono_hdr_plugin.studio import scenes
-        from mono_hdr_plugin.studio.dataset import studio_captured_scene
+        from mono_hdr_plugin.apps.studio import scenes
+        from mono_hdr_plugin.apps.studio.dataset import studio_captured_scene
 
         monkeypatch.setitem(scenes.SCENES, "demo", tiny_demo)
         out = synth(SynthConfig(scene="demo", out=tmp_path / layout, layout=layout))

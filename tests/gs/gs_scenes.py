@@ -2,7 +2,7 @@
 
 import torch
 
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 
 
 def make_camera(width: int = 40, height: int = 32, near: float = 0.05) -> Camera:

@@ -10,8 +10,8 @@ from backbones.gs import (DefaultStrategy, GaussianBackbone, GaussianConfig, Mcm
                           render_gaussians)
 from backbones.gs.sh import visible_colors
 from gs_scenes import make_camera
-from mono_hdr_plugin.backbone import SceneInfo
-from mono_hdr_plugin.cameras import look_at
+from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.cameras import look_at
 from mono_hdr_plugin.methods import MethodConfig, MonoHDR
 
 
@@ -166,7 +166,7 @@ class TestRenderLdrFeatures:
     def test_renders_get_the_depth_pass_when_asked(self):
         """Pipeline.render(with_depth=True) (viewer depth, videos, point clouds) runs the render_depth
         pass, with the composite's alpha beside it; evaluation's renders skip it."""
-        from mono_hdr_plugin.pipeline import Pipeline
+        from mono_hdr_plugin.training.pipeline import Pipeline
 
         scene = make_scene()
         backbone = GaussianBackbone(GaussianConfig(), scene).eval()

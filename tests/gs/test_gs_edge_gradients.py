@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from backbones.gs.rasterizer import project_gaussians, render_gaussians
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 
 WIDTH, HEIGHT, FX, FY, CX, CY, NEAR = 40, 32, 36.0, 37.8, 20.7, 15.6, 0.05
 # camera-space x/z and y/z beyond which the Jacobian is clamped: the image edge plus 0.3 x half the field of view

@@ -7,7 +7,7 @@ from backbones.gs import GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.sh import sh_to_rgb
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.studio.commands import SynthConfig, synth
+from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 
 
 def backbone_for(scene, **config) -> GaussianBackbone:

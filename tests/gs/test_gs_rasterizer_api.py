@@ -6,7 +6,7 @@ import torch
 
 from backbones.gs import rasterizer, reference
 from backbones.gs.rasterizer import project_gaussians, render_gaussians
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.cameras import Camera
 from gs_scenes import make_camera, random_gaussians
 
 PARAMS = ("means", "quats", "scales", "opacities", "values")

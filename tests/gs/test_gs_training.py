@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig
-from mono_hdr_plugin.checkpoints import load_checkpoint
+from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.methods import method_names
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def gs_trainer(tmp_path, scene, method: str = "mono", max_steps: int = 2, **backbone_overrides) -> Trainer:
@@ -121,7 +122,7 @@ class TestTimeBudget:
 
     @pytest.fixture
     def slowing_clock(self, monkeypatch):
-        import mono_hdr_plugin.train as train_module
+        import mono_hdr_plugin.training.trainer as train_module
 
         clock = SlowingClock(first=0.1, growth=0.004)
         monkeypatch.setattr(train_module.time, "perf_counter", clock.perf_counter)

@@ -16,7 +16,7 @@ DRIVER = f"""
 import sys
 sys.path.insert(0, {str(EXAMPLES)!r})
 import register_backbone  # registers voxel-grid
-from mono_hdr_plugin.cli import run
+from mono_hdr_plugin.apps.cli import run
 run()
 """
 

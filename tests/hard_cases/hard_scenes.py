@@ -14,9 +14,10 @@ from torch import Tensor
 
 from backbones.gs import DefaultStrategy, GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 from register_backbone import VoxelGridConfig  # examples/, on sys.path via tests/conftest.py
 
 BACKBONES = ("voxel-grid", "gs", "nerf")
@@ -136,7 +137,7 @@ def train_and_check(trainer: Trainer, steps: int) -> dict:
     """Train `steps` steps, then save and evaluate through Trainer.train; assert that no step was
     skipped, every loss is finite, parameters are finite, the checkpoint loads and every metric is
     a finite number. Returns the metrics."""
-    from mono_hdr_plugin.checkpoints import load_checkpoint
+    from mono_hdr_plugin.training.checkpoints import load_checkpoint
 
     for _ in range(steps):
         record = trainer.train_step()

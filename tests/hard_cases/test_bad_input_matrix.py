@@ -14,14 +14,14 @@ import torch
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from hard_scenes import make_scene, make_trainer, write_disk_scene
-from mono_hdr_plugin.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_image
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.registry import RegistryError, get_backbone
-from mono_hdr_plugin.train import build_trainer
+from mono_hdr_plugin.core.registry import RegistryError, get_backbone
+from mono_hdr_plugin.training.trainer import build_trainer
 
 
 @pytest.fixture
@@ -162,7 +162,7 @@ def test_fixed_protocol_without_exposure(tmp_path, data):
     (["train", "voxel-grid", "--max-steps", "many"], "many"),
 ])
 def test_unparseable_cli_value_exits_2_naming_it(argv, named, capsys, monkeypatch):
-    from mono_hdr_plugin import cli
+    from mono_hdr_plugin.apps import cli
 
     monkeypatch.setattr("sys.argv", ["mono-hdr", *argv])
     monkeypatch.delenv("MONO_HDR_DEBUG", raising=False)

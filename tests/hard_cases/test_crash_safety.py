@@ -15,8 +15,8 @@ import pytest
 import torch
 
 from cli_driver import environment, train_args, write_driver
-from mono_hdr_plugin import checkpoints
-from mono_hdr_plugin.checkpoints import load_checkpoint, save_checkpoint
+from mono_hdr_plugin.training import checkpoints
+from mono_hdr_plugin.training.checkpoints import load_checkpoint, save_checkpoint
 
 MAX_STEPS = 100_000  # never reached: every run but the last is killed
 

@@ -14,7 +14,7 @@ import torch
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import train_args
 from hard_scenes import make_scene, make_trainer, write_disk_scene
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.errors import DatasetError

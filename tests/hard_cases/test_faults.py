@@ -18,11 +18,12 @@ import torch
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import environment, run_cli, run_in_tmpfs, train_args, write_driver
 from hard_scenes import make_scene, make_trainer
-from mono_hdr_plugin import checkpoints, cli
-from mono_hdr_plugin.checkpoints import CheckpointError, load_checkpoint
-from mono_hdr_plugin.cli import main
-from mono_hdr_plugin.outputs import OutputError
-from mono_hdr_plugin.train import Trainer, TrainingDiverged, TrainingInterrupted
+from mono_hdr_plugin.training import checkpoints, cli
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
+from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.data.outputs import OutputError
+from mono_hdr_plugin.training.hooks import TrainingInterrupted
+from mono_hdr_plugin.training.trainer import Trainer, TrainingDiverged
 
 
 @pytest.fixture(scope="module")
@@ -116,7 +117,7 @@ def test_read_only_out_is_one_line_before_anything_is_loaded(tmp_path, disk_scen
 def test_unwritable_out_is_refused_before_the_data_is_loaded(tmp_path, disk_scene, monkeypatch):
     """File-system stub: creating the claim file is denied (as in a folder without write permission)."""
     import mono_hdr_plugin.data.loading as loading
-    from mono_hdr_plugin.outputs import RUN_FILE
+    from mono_hdr_plugin.data.outputs import RUN_FILE
 
     real_open = os.open
 
@@ -132,7 +133,7 @@ def test_unwritable_out_is_refused_before_the_data_is_loaded(tmp_path, disk_scen
 
 
 def test_metrics_that_cannot_be_written_say_the_trained_model_is_saved(tmp_path, scene, monkeypatch):
-    import mono_hdr_plugin.train as train_module
+    import mono_hdr_plugin.training.trainer as train_module
 
     def full(path, data):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))

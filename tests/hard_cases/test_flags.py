@@ -11,14 +11,14 @@ import typing
 import pytest
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-from mono_hdr_plugin.cli import EvalConfig, main
-from mono_hdr_plugin.export import ExportConfig
-from mono_hdr_plugin.registry import BACKBONES
-from mono_hdr_plugin.render import RenderConfig
-from mono_hdr_plugin.studio.commands import SynthConfig
-from mono_hdr_plugin.train import check_train_config, train_config_for
-from mono_hdr_plugin.validation import FlagError, check_flags, rules_of
-from mono_hdr_plugin.viewer import ViewConfig
+from mono_hdr_plugin.apps.cli import EvalConfig, main
+from mono_hdr_plugin.apps.export import ExportConfig
+from mono_hdr_plugin.core.registry import BACKBONES
+from mono_hdr_plugin.apps.render import RenderConfig
+from mono_hdr_plugin.apps.studio.commands import SynthConfig
+from mono_hdr_plugin.training.config import check_train_config, train_config_for
+from mono_hdr_plugin.core.validation import FlagError, check_flags, rules_of
+from mono_hdr_plugin.apps.viewer import ViewConfig
 
 BUILT_IN = ("gs", "nerf", "voxel-grid")
 

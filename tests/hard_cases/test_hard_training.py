@@ -12,7 +12,7 @@ import torch
 
 from backbones.gs import GaussianBackbone
 from hard_scenes import BACKBONES, EXPOSURES, make_scene, make_trainer, orbit_camera, photograph, train_and_check
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.io import read_exr
 
 STEPS = 200

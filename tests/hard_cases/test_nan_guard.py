@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from hard_scenes import finite_parameters, make_scene, make_trainer
-from mono_hdr_plugin.checkpoints import load_checkpoint
-from mono_hdr_plugin.train import TrainingDiverged, build_trainer
+from mono_hdr_plugin.training.checkpoints import load_checkpoint
+from mono_hdr_plugin.training.trainer import TrainingDiverged, build_trainer
 
 
 @pytest.fixture(scope="module")

@@ -16,10 +16,11 @@ import pytest
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import environment, train_args, write_driver
 from hard_scenes import write_disk_scene
-from mono_hdr_plugin.checkpoints import load_checkpoint
-from mono_hdr_plugin.cli import main
-from mono_hdr_plugin.outputs import RUN_FILE, OutputError, check_output, claim_output
-from mono_hdr_plugin.train import ResumeMismatch, TRAIN_OUTPUTS
+from mono_hdr_plugin.training.checkpoints import load_checkpoint
+from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.data.outputs import RUN_FILE, OutputError, check_output, claim_output
+from mono_hdr_plugin.training.config import TRAIN_OUTPUTS
+from mono_hdr_plugin.training.resume import ResumeMismatch
 
 
 @pytest.fixture
@@ -223,7 +224,7 @@ def test_resume_on_a_moved_copy_of_the_same_data_continues(run, disk_scene, tmp_
     (("--exposure-index", "2"), "it was trained on scene 'scene'.*changed: --exposure-index 2 \\(was 1\\)"),
 ])
 def test_resume_with_another_model_or_data_is_one_line(run, disk_scene, flags, message, monkeypatch, capsys):
-    from mono_hdr_plugin import cli
+    from mono_hdr_plugin.apps import cli
 
     before = snapshot(run)
     monkeypatch.setattr("sys.argv", ["mono-hdr", *train_args(disk_scene, run, 5, "--resume", *flags)])
@@ -278,7 +279,7 @@ def test_render_adds_to_its_own_folder_and_never_writes_into_another(run, tmp_pa
 
 def test_synth_replaces_its_own_dataset_without_leaving_the_old_layout(tmp_path, tiny_demo, monkeypatch):
     from mono_hdr_plugin.data.layouts import detect_layout
-    from mono_hdr_plugin.studio import dataset as studio_dataset
+    from mono_hdr_plugin.apps.studio import dataset as studio_dataset
 
     monkeypatch.setattr(studio_dataset, "get_scene", lambda name: tiny_demo)
     out = tmp_path / "synth"
@@ -299,7 +300,7 @@ def test_process_data_overwrite_of_the_folder_holding_the_photos_is_refused(tmp_
     """The issue's case: --out PARENT --overwrite, PARENT holding --images (and an unrelated file)."""
     from PIL import Image
 
-    from mono_hdr_plugin.process_data import ProcessDataConfig, process_data
+    from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
 
     photos = tmp_path / "parent" / "photos"
     photos.mkdir(parents=True)

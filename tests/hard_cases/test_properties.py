@@ -13,10 +13,10 @@ from backbones.nerf import NerfBackbone
 from backbones.nerf.rendering import compositing_weights, make_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, sample_pdf, sample_stratified
 from hard_scenes import backbone_config, make_scene
-from mono_hdr_plugin.backbone import SceneInfo
-from mono_hdr_plugin.cameras import Camera, look_at
-from mono_hdr_plugin.converters import H2LColorConverter, L2HColorConverter, PerChannelCRF, PlainH2L, PlainL2H
-from mono_hdr_plugin.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim
+from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.cameras import Camera, look_at
+from mono_hdr_plugin.core.converters import H2LColorConverter, L2HColorConverter, PerChannelCRF, PlainH2L, PlainL2H
+from mono_hdr_plugin.core.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim
 
 PROPERTY = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

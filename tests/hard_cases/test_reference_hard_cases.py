@@ -14,13 +14,13 @@ from backbones.nerf import NerfBackbone
 from backbones.nerf.rendering import compositing_weights, make_composite
 from backbones.nerf.sampling import ray_segments, sample_pdf
 from hard_scenes import backbone_config, make_scene
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, write_exr
 from mono_hdr_plugin.methods import MethodOutput
-from mono_hdr_plugin.metrics import hdr_metrics, normalise_hdr, psnr
-from mono_hdr_plugin.evaluation import save_view_renders
+from mono_hdr_plugin.core.metrics import hdr_metrics, normalise_hdr, psnr
+from mono_hdr_plugin.training.evaluation import save_view_renders
 
 BACKENDS = ("kernel", "torch")
 SIZE = 24

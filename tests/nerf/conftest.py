@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from mono_hdr_plugin.backbone import SceneInfo
+from mono_hdr_plugin.core.backbone import SceneInfo
 from nerf_scenes import orbit_camera
 
 

@@ -3,7 +3,7 @@
 import torch
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
-from mono_hdr_plugin.cameras import Camera, look_at
+from mono_hdr_plugin.core.cameras import Camera, look_at
 
 
 def tiny_field(field: str):

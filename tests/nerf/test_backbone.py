@@ -8,9 +8,9 @@ import torch.nn.functional as F
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfBackbone, NerfConfig
 from backbones.nerf.rendering import compositing_weights
-from mono_hdr_plugin.backbone import Backbone, SceneInfo
-from mono_hdr_plugin.cameras import Camera, look_at
-from mono_hdr_plugin.registry import get_backbone
+from mono_hdr_plugin.core.backbone import Backbone, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera, look_at
+from mono_hdr_plugin.core.registry import get_backbone
 from nerf_scenes import orbit_camera, tiny_config
 
 FIELDS = ("paper", "cpu")
@@ -382,7 +382,8 @@ class TestOccupancySkipping:
     def test_refresh_keeps_every_weighted_sample_of_a_trained_field(self, tmp_path, voxel_scene):
         """The occupancy grid of a trained field never drops a sample that carries weight (1 % of its
         ray) in a dense-sampling reference render (every cell occupied, steps 16x finer)."""
-        from mono_hdr_plugin.train import Trainer, train_config_for
+        from mono_hdr_plugin.training.config import train_config_for
+        from mono_hdr_plugin.training.trainer import Trainer
 
         config = NerfConfig(field=GridFieldConfig(levels=2, min_resolution=4, max_resolution=16, hidden_width=16,
                                                   min_step=1 / 32, occupancy_resolution=16, occupancy_update_every=4,
@@ -419,7 +420,7 @@ class TestRenderMemoryBound:
         """Memory per piece is bounded by construction: Pipeline.render hands the backbone at most
         render_chunk rays, and the field sees at most render_chunk x max_samples_per_ray samples."""
         from mono_hdr_plugin.methods import MethodConfig
-        from mono_hdr_plugin.pipeline import Pipeline
+        from mono_hdr_plugin.training.pipeline import Pipeline
 
         pipeline = Pipeline.create("nerf", tiny_config("cpu", render_chunk=50), MethodConfig(), scene).eval()
         backbone = pipeline.backbone

@@ -9,7 +9,8 @@ from backbones.nerf import NerfBackbone, NerfConfig
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods import method_names
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 from nerf_scenes import tiny_config
 
 

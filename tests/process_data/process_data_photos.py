@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.studio.capture import capture
-from mono_hdr_plugin.studio.render import render_scene
-from mono_hdr_plugin.studio.scene import (CameraRig, StudioScene, box, diffuse, noise_image, panel, place, rgb, rotate,
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.apps.studio.capture import capture
+from mono_hdr_plugin.apps.studio.render import render_scene
+from mono_hdr_plugin.apps.studio.scene import (CameraRig, StudioScene, box, diffuse, noise_image, panel, place, rgb, rotate,
                                           scale, translate)
-from mono_hdr_plugin.studio.shoot import save_jpeg
+from mono_hdr_plugin.apps.studio.shoot import save_jpeg
 
 
 def noise_texture(path: Path, size: int = 512, seed: int = 0) -> Path:

@@ -9,8 +9,8 @@ import pytest
 from PIL import Image
 
 from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.photos import brackets
-from mono_hdr_plugin.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,
+from mono_hdr_plugin.data.photos import brackets
+from mono_hdr_plugin.data.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,
                                              brightness_order, detect_brackets, dynamic_range_stops,
                                              estimate_relative_exposures, merge_bracket, recover_response,
                                              response_sample)

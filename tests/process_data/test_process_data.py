@@ -10,16 +10,16 @@ import pytest
 import torch
 from PIL import Image
 
-from mono_hdr_plugin.cli import main as cli_main
+from mono_hdr_plugin.apps.cli import main as cli_main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.photos.exif import PhotoExif, read_exif
-from mono_hdr_plugin.process_data import (PhotoRecord, ProcessDataConfig, assign_exposures, check_one_camera,
+from mono_hdr_plugin.data.photos.exif import PhotoExif, read_exif
+from mono_hdr_plugin.apps.process_data import (PhotoRecord, ProcessDataConfig, assign_exposures, check_one_camera,
                                           check_registered, exposure_warnings, find_photos, load_photo, process_data,
                                           read_exposure_csv, relative_exposure)
-from mono_hdr_plugin.studio.shoot import save_jpeg
-from mono_hdr_plugin.studio.alignment import similarity
+from mono_hdr_plugin.apps.studio.shoot import save_jpeg
+from mono_hdr_plugin.apps.studio.alignment import similarity
 from process_data_photos import shoot, textured_scene
 
 ROTATION_LIMIT_DEG = 1.0
@@ -122,8 +122,9 @@ class TestProcessData:
 
 class TestTrainOnResult:
     def test_a_few_steps(self, processed, tmp_path):
-        from mono_hdr_plugin.registry import BACKBONES
-        from mono_hdr_plugin.train import Trainer, train_config_for
+        from mono_hdr_plugin.core.registry import BACKBONES
+        from mono_hdr_plugin.training.config import train_config_for
+        from mono_hdr_plugin.training.trainer import Trainer
 
         if "gs" in BACKBONES.available():
             from backbones.gs import DefaultStrategy, GaussianConfig

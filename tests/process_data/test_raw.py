@@ -8,9 +8,9 @@ import pytest
 
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image
-from mono_hdr_plugin.photos.raw import decode, encode, read_raw
-from mono_hdr_plugin.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.studio.render import render_scene
+from mono_hdr_plugin.data.photos.raw import decode, encode, read_raw
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.studio.render import render_scene
 from process_data_photos import textured_scene
 from raw_files import write_dng
 

@@ -13,12 +13,12 @@ from PIL import Image
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.loading import captured_scene, downscale_image, load_scene
-from mono_hdr_plugin.metrics import hdr_metrics
-from mono_hdr_plugin.photos.exif import EXPOSURE_MODE_AUTO_BRACKET, read_exif
-from mono_hdr_plugin.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.studio.capture import capture
-from mono_hdr_plugin.studio.render import render_scene
-from mono_hdr_plugin.studio.shoot import ShootConfig, metered_exposure, shoot, third_stop
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.data.photos.exif import EXPOSURE_MODE_AUTO_BRACKET, read_exif
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.studio.capture import capture
+from mono_hdr_plugin.apps.studio.render import render_scene
+from mono_hdr_plugin.apps.studio.shoot import ShootConfig, metered_exposure, shoot, third_stop
 from process_data_photos import textured_scene
 
 SHOOT = ShootConfig(views="all", bracket_every=4, bracket_stops=(-2.0, 0.0, 2.0))

@@ -8,10 +8,10 @@ import pytest
 
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_image
-from mono_hdr_plugin.photos.video import extract_frames, sharpness
-from mono_hdr_plugin.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.studio.capture import capture
-from mono_hdr_plugin.studio.render import render_scene
+from mono_hdr_plugin.data.photos.video import extract_frames, sharpness
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.studio.capture import capture
+from mono_hdr_plugin.apps.studio.render import render_scene
 from process_data_photos import textured_scene
 
 

@@ -5,8 +5,8 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from mono_hdr_plugin.studio import capture as capture_module
-from mono_hdr_plugin.studio.capture import (INVERSES, PHYSICAL_ORDER, STAGES, CaptureContext,
+from mono_hdr_plugin.apps.studio import capture as capture_module
+from mono_hdr_plugin.apps.studio.capture import (INVERSES, PHYSICAL_ORDER, STAGES, CaptureContext,
                                             CaptureSettings, capture, inverse_response_curve,
                                             linearise, response_curve, validate_effects)
 

@@ -12,15 +12,15 @@ from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_image
 from mono_hdr_plugin.data.loading import load_scene, scene_names, to_scene_data
-from mono_hdr_plugin.metrics import normalise_hdr
-from mono_hdr_plugin.studio import figures
-from mono_hdr_plugin.studio import render as render_module
-from mono_hdr_plugin.studio.commands import ScenesConfig, list_scenes, list_scenes_command
-from mono_hdr_plugin.studio.dataset import get_scene, studio_captured_scene
-from mono_hdr_plugin.studio.render import dynamic_range, render_key, render_scene, seed_agreement
-from mono_hdr_plugin.studio.scene import (STUDIO_EXPOSURES, CameraRig, StudioScene, diffuse, lamp, noise_image,
+from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.apps.studio import figures
+from mono_hdr_plugin.apps.studio import render as render_module
+from mono_hdr_plugin.apps.studio.commands import ScenesConfig, list_scenes, list_scenes_command
+from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
+from mono_hdr_plugin.apps.studio.render import dynamic_range, render_key, render_scene, seed_agreement
+from mono_hdr_plugin.apps.studio.scene import (STUDIO_EXPOSURES, CameraRig, StudioScene, diffuse, lamp, noise_image,
                                           noise_texture, rgb)
-from mono_hdr_plugin.studio.scenes import BUILTIN_SCENES, SCENES
+from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES, SCENES
 
 REAL = {scene.name: scene for scene in BUILTIN_SCENES}
 
@@ -61,7 +61,7 @@ class TestRegistry:
 
     def test_table_prints(self, capsys, monkeypatch):
         monkeypatch.setenv("COLUMNS", "200")
-        with mock.patch("mono_hdr_plugin.studio.commands.list_scenes", return_value=[
+        with mock.patch("mono_hdr_plugin.apps.studio.commands.list_scenes", return_value=[
                 {"name": "demo", "resolution": "64x64", "views": 35, "spp": 32, "description": "d",
                  "dynamic_range": 12345.0, "agreement_hdr": 51.234, "agreement_ldr": 47.06,
                  "effects": ("exposure", "crf")}]):

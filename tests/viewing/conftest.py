@@ -3,8 +3,9 @@
 import pytest
 
 import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
-from mono_hdr_plugin.frames import LoadedModel, calibrate
-from mono_hdr_plugin.train import Trainer, train_config_for
+from mono_hdr_plugin.training.frames import LoadedModel, calibrate
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trainer import Trainer
 
 
 def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono",
@@ -39,7 +40,7 @@ def voxel_crf(tmp_path_factory, voxel_scene, voxel_backbone_config):
 def demo_voxel_checkpoint(tmp_path_factory):
     """A voxel-grid checkpoint of the built-in demo scene (outside slow tests, its tiny variant),
     as the command line writes it."""
-    from mono_hdr_plugin.cli import main  # noqa: PLC0415
+    from mono_hdr_plugin.apps.cli import main  # noqa: PLC0415
 
     out = tmp_path_factory.mktemp("demo-voxel") / "run"
     main(["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet",

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from browser_screenshot import chromium_available, screenshot_when  # examples/, on sys.path via conftest
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.cli import main
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not chromium_available() and not os.environ.get("CI"),
@@ -67,7 +67,7 @@ def gs_checkpoint(tmp_path_factory):
 def test_view_serves_a_rendered_page_and_stops_cleanly(gs_checkpoint, tmp_path):
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.cli", "view", "--checkpoint", str(gs_checkpoint),
+    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.apps.cli", "view", "--checkpoint", str(gs_checkpoint),
                                 "--port", str(port), "--out", str(tmp_path / "saved")],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -83,7 +83,7 @@ def test_view_serves_a_rendered_page_and_stops_cleanly(gs_checkpoint, tmp_path):
 def test_train_with_viewer_shows_training_and_stops_cleanly(tmp_path):
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.cli", "train", "gs", "--scene", "demo",
+    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.apps.cli", "train", "gs", "--scene", "demo",
                                 "--max-steps", "40", "--out", str(tmp_path / "run"), "--quiet", "--max-eval-views", "1",
                                 "--no-save-renders", "--backbone.random-init-points", "3000", "--viewer",
                                 "--viewer-port", str(port)],

@@ -7,10 +7,10 @@ import pytest
 import torch
 import viser.transforms as vtf
 
-from mono_hdr_plugin.camera_paths import (ViewerCamera, camera_from_viewer, camera_path, focus_point, scene_up,
+from mono_hdr_plugin.apps.camera_paths import (ViewerCamera, camera_from_viewer, camera_path, focus_point, scene_up,
                                          viewer_from_camera)
-from mono_hdr_plugin.evaluation import first_per_camera
-from mono_hdr_plugin.cameras import look_at
+from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.core.cameras import look_at
 
 
 class TestViewerCamera:

@@ -5,10 +5,10 @@ import math
 import pytest
 import torch
 
-from mono_hdr_plugin.display import aces_filmic, colour_depth, exposed_hdr, needs_render_at, to_display
-from mono_hdr_plugin.frames import ExposureModel, fit_display_scale, reference_exposure, srgb_decode, srgb_encode
-from mono_hdr_plugin.pipeline import Frame
-from mono_hdr_plugin.metrics import normalise_hdr
+from mono_hdr_plugin.apps.display import aces_filmic, colour_depth, exposed_hdr, needs_render_at, to_display
+from mono_hdr_plugin.training.frames import ExposureModel, fit_display_scale, reference_exposure, srgb_decode, srgb_encode
+from mono_hdr_plugin.training.pipeline import Frame
+from mono_hdr_plugin.core.metrics import normalise_hdr
 
 MONO = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=False, ldr_exposures=(2.0,))
 CRF = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=True)

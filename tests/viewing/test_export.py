@@ -11,11 +11,11 @@ from plyfile import PlyData
 from backbones.gs import GaussianBackbone, GaussianConfig, load_ply
 from backbones.nerf import GridFieldConfig, NerfConfig
 from conftest import train_model
-from mono_hdr_plugin.cameras import Camera
-from mono_hdr_plugin.cli import main
-from mono_hdr_plugin.export import (converters_paths, export_splats, load_converters, load_point_cloud, point_cloud,
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.apps.export import (converters_paths, export_splats, load_converters, load_point_cloud, point_cloud,
                                     points_from_depth, write_point_cloud)
-from mono_hdr_plugin.pipeline import Pipeline
+from mono_hdr_plugin.training.pipeline import Pipeline
 
 # The vertex properties of a degree-3 3DGS PLY, in the order the reference implementation writes them.
 STANDARD_3DGS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]

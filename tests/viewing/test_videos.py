@@ -6,12 +6,12 @@ import pytest
 import torch
 
 import register_backbone  # noqa: F401 - registers voxel-grid for the command line
-from mono_hdr_plugin.camera_paths import camera_path
-from mono_hdr_plugin.cli import main
+from mono_hdr_plugin.apps.camera_paths import camera_path
+from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.data.io import read_exr, read_image
-from mono_hdr_plugin.render import even_sized, render_exposure_sweep, render_path
+from mono_hdr_plugin.apps.render import even_sized, render_exposure_sweep, render_path
 
 
 def video_frames(path) -> list[np.ndarray]:

@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from conftest import train_model
-from mono_hdr_plugin.camera_paths import ViewerCamera, viewer_from_camera
-from mono_hdr_plugin.display import to_uint8
-from mono_hdr_plugin.frames import srgb_encode
-from mono_hdr_plugin.metrics import hdr_metrics
-from mono_hdr_plugin.pipeline import RenderCancelled
-from mono_hdr_plugin.viewer import ModelSnapshots, SnapshotPublisher, Viewer, ViewerRenderer, letterbox
+from mono_hdr_plugin.apps.camera_paths import ViewerCamera, viewer_from_camera
+from mono_hdr_plugin.apps.display import to_uint8
+from mono_hdr_plugin.training.frames import srgb_encode
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.training.pipeline import RenderCancelled
+from mono_hdr_plugin.apps.viewer import ModelSnapshots, SnapshotPublisher, Viewer, ViewerRenderer, letterbox
 
 # A browser camera: 10 degrees above the rig's plane, a wide 4:3 canvas.
 BROWSER = ViewerCamera(wxyz=(0.2, -0.1, 0.6, 0.77), position=(0.0, -2.8, 0.9), fov=0.9, aspect=4 / 3)
@@ -124,7 +124,7 @@ class TestSnapshots:
     def test_training_with_a_watching_viewer_learns_the_same_model(self, tmp_path, voxel_scene, voxel_backbone_config):
         """The publisher copies the model while someone watches; training itself is unchanged."""
         plain, _ = train_model(tmp_path / "plain", voxel_scene, "voxel-grid", voxel_backbone_config, steps=6)
-        from mono_hdr_plugin.train import Trainer  # noqa: PLC0415
+        from mono_hdr_plugin.training.trainer import Trainer  # noqa: PLC0415
 
         watched = Trainer(plain.config, "voxel-grid", voxel_scene)
         watched.config.out = tmp_path / "watched"

@@ -4,7 +4,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mono_hdr_plugin.data.captures import CapturedScene
-from mono_hdr_plugin.registry import PluginRegistry, RegistryError
+from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 
 
 class DatasetLayout:

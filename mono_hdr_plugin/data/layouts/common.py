@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import check_readable
-from mono_hdr_plugin.validation import ANY_FINITE, Rule, numeric
+from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_NAME_BYTES = 255

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mono_hdr_plugin.cameras import Camera
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras,
                                            bounds_from_points)
 from mono_hdr_plugin.data.errors import DatasetError, missing

@@ -14,14 +14,14 @@ from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
+from mono_hdr_plugin.core.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_one_size, image_size, json_matrix,
                                                  json_name, json_number, json_object, load_json)
-from mono_hdr_plugin.validation import between
+from mono_hdr_plugin.core.validation import between
 
 SPLITS = ("train", "test")
 MAX_EXPOSURES = 5

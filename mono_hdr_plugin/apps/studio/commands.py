@@ -1,0 +1,95 @@
+"""`mono-hdr synth` and `mono-hdr scenes`: configs and functions the CLI wires in."""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+from mono_hdr_plugin.apps.studio.render import dynamic_range, render_scene
+from mono_hdr_plugin.apps.studio.scene import StudioScene
+from mono_hdr_plugin.apps.studio.scenes import SCENES
+from mono_hdr_plugin.core.validation import SEED
+
+@dataclass
+class SynthConfig:
+    """Write a built-in studio scene to disk in a published dataset layout."""
+
+    scene: str = "demo"
+    """Built-in scene to write (see `mono-hdr scenes`)."""
+    out: Path = Path("outputs/synth")
+    """Folder to write the dataset into (created if missing)."""
+    layout: str = "hdr-gs"
+    """A writable layout (`mono-hdr layouts`): hdr-gs (images/, exr/, COLMAP sparse/0, exposures.json),
+    hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
+    seed: int = 0
+    """Seed of the simulated sensor noise."""
+    overwrite: bool = False
+    """Replace a dataset an earlier `mono-hdr synth` wrote in --out instead of refusing."""
+
+    flag_rules: ClassVar = {"seed": SEED}
+
+
+@dataclass
+class ScenesConfig:
+    """List the built-in studio scenes."""
+
+    render: bool = True
+    """Measure the dynamic range from the (cached) renders; False lists without rendering."""
+
+
+def png_bits(scene: StudioScene) -> int:
+    """8-bit PNGs hold an 8-bit capture exactly; deeper captures (or none) need 16 bits."""
+    return 8 if "quantize" in scene.effects and scene.capture.bits == 8 else 16
+
+
+def synth(config: SynthConfig) -> Path:
+    """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
+    from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.data.outputs import claim_output
+    from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
+
+    # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
+    with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
+        scene = get_scene(config.scene)
+        captured = studio_captured_scene(scene, seed=config.seed)
+        output.clear_previous()
+        write_layout(captured, config.out, config.layout, bits=png_bits(scene))
+    return config.out
+
+
+def list_scenes(render: bool = True) -> list[dict]:
+    """One row per scene: name, resolution, views, spp, effects and, when rendered, the dynamic
+    range and how well two renders with different seeds agree (worst view, dB; None unless rendered)."""
+    rows = []
+    for scene in SCENES.values():
+        row = {"name": scene.name, "resolution": f"{scene.width}x{scene.height}", "views": scene.rig.views,
+               "spp": scene.spp, "description": scene.description, "effects": scene.effects,
+               "dynamic_range": None, "agreement_hdr": None, "agreement_ldr": None}
+        if render:
+            rendered = render_scene(scene)
+            row.update(dynamic_range=dynamic_range(rendered.radiance),
+                       agreement_hdr=float(rendered.agreement_hdr.min()),
+                       agreement_ldr=float(rendered.agreement_ldr.min()))
+        rows.append(row)
+    return rows
+
+
+def list_scenes_command(config: ScenesConfig) -> None:
+    """Print the built-in scenes as a table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="Built-in studio scenes",
+                  caption="seed agreement: PSNR between two renders of each view with different seeds (worst "
+                          "view), mu-law HDR and the noise-free photo at t3; the ground truth is their mean")
+    for column in ("name", "resolution", "views", "spp", "dynamic range", "seed agreement HDR / LDR",
+                   "capture effects", "description"):
+        table.add_column(column)
+    for row in list_scenes(config.render):
+        if row["dynamic_range"] is None:
+            ratio = agreement = "not rendered"
+        else:
+            ratio = f"{row['dynamic_range']:.2g} : 1"
+            agreement = f"{row['agreement_hdr']:.1f} / {row['agreement_ldr']:.1f} dB"
+        table.add_row(row["name"], row["resolution"], str(row["views"]), f"2 x {row['spp']}", ratio, agreement,
+                      ", ".join(row["effects"]), row["description"])
+    Console().print(table)

@@ -1,0 +1,78 @@
+"""A studio scene as a dataset: render once (cached), photograph every view at t1..t5."""
+
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.apps.studio.capture import capture
+from mono_hdr_plugin.apps.studio.render import SceneRender, render_scene
+from mono_hdr_plugin.apps.studio.scene import StudioScene
+from mono_hdr_plugin.apps.studio.scenes import SCENES
+
+MAX_INIT_POINTS = 10_000
+
+
+def get_scene(name: str) -> StudioScene:
+    """The built-in scene called `name`."""
+    if name not in SCENES:
+        raise DatasetError(f"unknown scene {name!r}; choose one of {sorted(SCENES)} (mono-hdr scenes)")
+    return SCENES[name]
+
+
+def photo_seed(seed: int, view: int, exposure_index: int) -> int:
+    """Noise seed of one photo: the same photo gets the same noise whatever the protocol."""
+    return int(np.random.SeedSequence([seed, view, exposure_index]).generate_state(1)[0])
+
+
+def _photo(render: SceneRender, scene: StudioScene, view: int, exposure_index: int, seed: int):
+    exposure = scene.exposures[exposure_index]
+    return lambda: capture(render.radiance[view], exposure, scene.effects, scene.capture,
+                           seed=photo_seed(seed, view, exposure_index))
+
+
+def _cameras_with_depth_range(scene: StudioScene, render: SceneRender) -> list[Camera]:
+    """Scene cameras with near/far set from the surfaces each one sees."""
+    cameras = []
+    for camera, positions, hit in zip(scene.cameras(), render.positions, render.hit):
+        distances = np.linalg.norm(positions[hit] - camera.center.numpy(), axis=-1)
+        cameras.append(replace(camera, near=float(0.8 * distances.min()),
+                               far=float(1.2 * distances.max())))
+    return cameras
+
+
+def _initial_points(scene: StudioScene, render: SceneRender, views: list[CapturedView]):
+    """Surface points seen by the train views, coloured by their middle-exposure photos.
+
+    The same kind of points structure-from-motion gives a real capture.
+    """
+    rng = np.random.default_rng(0)
+    points, colours = [], []
+    for view in views:
+        if view.split != "train":
+            continue
+        hit = render.hit[view.view_id]
+        points.append(render.positions[view.view_id][hit])
+        colours.append(view.shots[len(view.shots) // 2].image()[hit])
+    points, colours = np.concatenate(points), np.concatenate(colours)
+    keep = rng.choice(len(points), min(MAX_INIT_POINTS, len(points)), replace=False)
+    return torch.from_numpy(points[keep]).float(), torch.from_numpy(colours[keep]).float()
+
+
+def studio_captured_scene(scene: StudioScene, seed: int = 0) -> CapturedScene:
+    """Render `scene` (or read the cached render) and photograph each view at every exposure."""
+    render = render_scene(scene)
+    views = [CapturedView(view_id=index, camera=camera, split=scene.split(index), name=f"{index:03d}",
+                          shots=[Shot(exposure, _photo(render, scene, index, e, seed), f"{index:03d}_{e}")
+                                 for e, exposure in enumerate(scene.exposures)],
+                          hdr=lambda index=index: render.radiance[index])
+             for index, camera in enumerate(_cameras_with_depth_range(scene, render))]
+    bounds_min, bounds_max = bounds_from_points(render.positions[render.hit])
+    points, colours = _initial_points(scene, render, views)
+    return CapturedScene(name=scene.name, views=views, bounds_min=bounds_min, bounds_max=bounds_max,
+                         points=points, point_colors=colours,
+                         metadata={"source": "studio", "effects": scene.effects,
+                                   "exposures": scene.exposures})

@@ -1,0 +1,110 @@
+"""Test-view metrics of a pipeline, and the EXR/PNG files a render of a view writes."""
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.core.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, normalise_hdr, psnr,
+                                     ssim, tone_mapped_pair)
+from mono_hdr_plugin.training.pipeline import Frame, Pipeline
+
+
+def first_per_camera(views: list[View]) -> list[View]:
+    """One view per camera pose (view_id), the first of its exposures: HDR is rendered once per camera."""
+    seen: set[int] = set()
+    return [view for view in views if not (view.view_id in seen or seen.add(view.view_id))]
+
+
+def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None) -> list[View]:
+    """Test views at exposures the method can render, from the first `max_eval_views` cameras."""
+    train_exposures = set(scene.train_exposures)
+    views = [v for v in scene.test if pipeline.renders_any_exposure or v.exposure in train_exposures]
+    if not views:
+        raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
+                         f"({sorted(train_exposures)}) for method {pipeline.method_name!r}")
+    view_ids = set(sorted({v.view_id for v in views})[:max_eval_views])
+    return [v for v in views if v.view_id in view_ids]
+
+
+HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
+
+
+@torch.no_grad()
+def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None,
+             render_dir: Path | None = None) -> dict[str, Any]:
+    """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
+
+    The headline LDR figures average the exposures the model was trained at (t1/t3/t5), each
+    exposure the mean of its views; HDR figures are mu-law with both normalisations
+    (docs/method.md), the mean over cameras. "views" lists every evaluated view's own figures.
+    With `render_dir`, each camera's renders are written there (`save_view_renders`).
+    """
+    views = evaluation_views(pipeline, scene, max_eval_views)
+    try:
+        lpips_model, lpips_skipped = load_lpips(), None
+    except LpipsUnavailable as reason:
+        lpips_model, lpips_skipped = None, str(reason)
+    hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
+    # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
+    fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
+    rows: list[dict[str, Any]] = []
+    with pipeline.evaluating():
+        for view in views:
+            output = (pipeline.render_matching(view.camera, view.image) if view.name in fitted
+                      else pipeline.render(view.camera, view.exposure))
+            ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
+            row = {"view": view.stem, "view_id": view.view_id, "exposure": view.exposure,
+                   "ldr_psnr": psnr(ldr, view.image), "ldr_ssim": ssim(ldr.double(), view.image.double()).item()}
+            if lpips_model is not None:
+                row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
+            if id(view) in hdr_views:
+                row.update(hdr_metrics(output.hdr, view.hdr))
+                if lpips_model is not None:
+                    row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
+                if render_dir is not None:
+                    save_view_renders(render_dir, view, output)
+            rows.append(row)
+    exposures = sorted({row["exposure"] for row in rows})
+    train_exposures = set(scene.train_exposures)
+    headline = [e for e in exposures if e in train_exposures] or exposures
+    by_exposure = {key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
+                   for key in ("ldr_psnr", "ldr_ssim")}
+    metrics: dict[str, Any] = {
+        "backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name,
+        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
+        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
+        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
+        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
+        "test_views": len({v.view_id for v in views}),
+        "ldr_exposure_fitted": sum(view.name in fitted for view in views),
+    }
+    for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
+        values = [row[key] for row in rows if key in row]
+        metrics[key] = _mean(values) if values else None
+    if lpips_skipped:
+        metrics["lpips_skipped"] = lpips_skipped
+    metrics["views"] = rows
+    return metrics
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values) if values else math.nan
+
+
+def save_view_renders(render_dir: Path, view: View, output: Frame) -> list[Path]:
+    """save_hdr_renders plus <stem>_ldr.png, the LDR render at the view's exposure."""
+    path = render_dir / f"{view.stem}_ldr.png"
+    write_png(path, output.ldr.numpy())  # write_png clips to [0, 1]
+    return [*save_hdr_renders(render_dir, view, output.hdr), path]
+
+
+def save_hdr_renders(render_dir: Path, view: View, hdr: torch.Tensor) -> list[Path]:
+    """<stem>_hdr.exr (linear) and <stem>_hdr_mulaw.png (tone-mapped for display) of an HDR render."""
+    paths = [render_dir / f"{view.stem}_hdr.exr", render_dir / f"{view.stem}_hdr_mulaw.png"]
+    write_exr(paths[0], hdr.numpy())
+    write_png(paths[1], normalise_hdr(hdr).numpy())
+    return paths

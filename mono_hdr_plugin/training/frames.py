@@ -1,0 +1,129 @@
+"""A trained model as linear images: the one rendering path of the viewer, camera-path videos,
+exposure sweeps and exports.
+
+Everything here renders through `Pipeline.render` (the one render path, also used by
+evaluation) and loads through `load_model(checkpoint)`.
+"""
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from mono_hdr_plugin.data.dataset import SceneData
+from mono_hdr_plugin.training.pipeline import Pipeline
+
+# Pixels whose LDR value lies in this range are neither clipped nor lost in noise: the display
+# scale is fitted on them.
+WELL_EXPOSED = (0.05, 0.95)
+# Long side of the training views rendered to fit the display scale: a few thousand pixels suffice.
+CALIBRATION_SIZE = 48
+CALIBRATION_VIEWS = 3
+
+
+@dataclass(frozen=True)
+class ExposureModel:
+    """How a model's renders relate to exposure time.
+
+    reference_exposure: seconds shown at EV 0 (the training exposure; the middle one of several).
+    display_scale: k in `linear display value = k * hdr * t / reference_exposure`. HDR renders
+        have no absolute scale (Mono-HDR's losses normalise by the maximum), so k is fitted: at
+        the reference exposure the sRGB-decoded LDR render equals k * hdr over well-exposed pixels
+        of the training views (median ratio).
+    ldr_exposures: exposures at which the method's own LDR output is a photo at that exposure.
+        Empty when it renders any exposure (the baselines' learned camera response), else the
+        single training exposure of Mono-HDR's LDR branch (none after multi-exposure training,
+        where the branch is an average).
+    """
+
+    reference_exposure: float
+    display_scale: float
+    renders_any_exposure: bool
+    ldr_exposures: tuple[float, ...] = ()
+
+    def shows_own_ldr(self, exposure: float) -> bool:
+        """Whether the method's LDR output is the photo at `exposure`."""
+        return self.renders_any_exposure or any(math.isclose(exposure, t, rel_tol=1e-6) for t in self.ldr_exposures)
+
+    def exposure_at(self, ev: float) -> float:
+        return self.reference_exposure * 2.0**ev
+
+    def ev_of(self, exposure: float) -> float:
+        return math.log2(exposure / self.reference_exposure)
+
+
+def srgb_encode(linear: Tensor) -> Tensor:
+    """The sRGB transfer curve of linear values, clipped to [0, 1] first."""
+    linear = linear.clamp(0.0, 1.0)
+    return torch.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: Tensor) -> Tensor:
+    """Inverse of srgb_encode on [0, 1]."""
+    encoded = encoded.clamp(0.0, 1.0)
+    return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def reference_exposure(exposures: list[float]) -> float:
+    """EV 0 of a model trained at these exposures: the middle one (t3 of t1, t3, t5)."""
+    ordered = sorted(exposures)
+    return ordered[(len(ordered) - 1) // 2]
+
+
+def fit_display_scale(ldr: Tensor, hdr: Tensor) -> float:
+    """k with srgb_decode(ldr) ~ k * hdr: the median ratio over well-exposed, lit pixel values;
+    a mid-grey mapping of the median radiance when no pixel qualifies."""
+    low, high = WELL_EXPOSED
+    usable = (ldr > low) & (ldr < high) & (hdr > 1e-8)
+    if usable.sum() >= 16:
+        return float((srgb_decode(ldr[usable]) / hdr[usable]).median())
+    lit = hdr[hdr > 1e-8]
+    return 0.18 / float(lit.median()) if lit.numel() else 1.0
+
+
+@torch.no_grad()
+def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
+    """The ExposureModel of a model trained on `scene` (renders a few small training views)."""
+    exposures = scene.train_exposures
+    reference = reference_exposure(exposures)
+    views = {view.view_id: view for view in scene.train}
+    chosen = list(views.values())[:: max(1, len(views) // CALIBRATION_VIEWS)][:CALIBRATION_VIEWS]
+    ldr, hdr = [], []
+    for view in chosen:
+        factor = min(1.0, CALIBRATION_SIZE / max(view.camera.width, view.camera.height))
+        frame = pipeline.render(view.camera.scaled(factor), reference)
+        ldr.append(frame.ldr.reshape(-1))
+        hdr.append(frame.hdr.reshape(-1))
+    return ExposureModel(reference_exposure=reference, display_scale=fit_display_scale(torch.cat(ldr), torch.cat(hdr)),
+                         renders_any_exposure=pipeline.renders_any_exposure,
+                         ldr_exposures=tuple(exposures) if len(exposures) == 1 else ())
+
+
+@dataclass
+class LoadedModel:
+    """A trained model ready to render: its pipeline in eval mode, the scene it was trained on
+    (cameras, ground truth) and its exposure model."""
+
+    pipeline: Pipeline
+    scene: SceneData
+    exposure: ExposureModel
+    step: int
+
+    @property
+    def backbone(self):
+        return self.pipeline.backbone
+
+    @property
+    def method(self):
+        return self.pipeline.method
+
+
+def load_model(checkpoint: Path, scene: SceneData | None = None) -> LoadedModel:
+    """A checkpoint written by `mono-hdr train`, on its own data unless `scene` is given."""
+    from mono_hdr_plugin.training.trained import load_pipeline  # noqa: PLC0415 - training code is heavy to import
+
+    pipeline, scene, _, payload = load_pipeline(checkpoint, scene=scene)
+    pipeline.eval()
+    return LoadedModel(pipeline=pipeline, scene=scene, step=payload["step"], exposure=calibrate(pipeline, scene))

@@ -1,0 +1,126 @@
+"""What the training loop calls besides the step: progress, evaluation, checkpoints, Ctrl-C."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+if TYPE_CHECKING:  # annotations only: the trainer imports this module
+    from mono_hdr_plugin.training.trainer import Trainer
+
+console = Console(stderr=True)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped training after a finished step; `checkpoint` holds that step."""
+
+    def __init__(self, step: int, checkpoint: Path):
+        super().__init__(f"interrupted at step {step}; checkpoint saved to {checkpoint}")
+        self.step, self.checkpoint = step, checkpoint
+
+
+class TrainingHook:
+    """Something the training loop calls: at the start, after every good step, at the end."""
+
+    def on_start(self, trainer: "Trainer") -> None:
+        pass
+
+    def after_step(self, trainer: "Trainer", record: dict[str, Any]) -> None:
+        pass
+
+    def on_end(self, trainer: "Trainer") -> None:
+        pass
+
+
+class ProgressBar(TrainingHook):
+    """A rich progress bar with the loss and the training-view LDR PSNR."""
+
+    def on_start(self, trainer: Trainer) -> None:
+        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
+                                 TimeElapsedColumn(), console=console)
+        self.task = self.progress.add_task(escape(f"{trainer.backbone_name}/{trainer.pipeline.method_name}"),
+                                           total=trainer.run_length, completed=trainer.step, loss=math.nan,
+                                           psnr=math.nan)
+        self.progress.start()
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        self.progress.update(self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"],
+                             psnr=record["ldr_psnr"])
+
+    def on_end(self, trainer: Trainer) -> None:
+        self.progress.stop()
+
+
+class EvaluateEvery(TrainingHook):
+    """Test-view metrics every `steps` steps (not at the last one: the run evaluates at its end)."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if trainer.step % self.steps == 0 and not trainer.finished:
+            metrics = trainer.evaluate()
+            trainer.history.append(metrics)
+            console.print(f"step {trainer.step}: HDR PSNR {metrics.get('hdr_psnr') or math.nan:.2f} dB, "
+                          f"LDR PSNR {metrics['ldr_psnr']:.2f} dB")
+
+
+class CheckpointEvery(TrainingHook):
+    """OUT/checkpoints/latest.pt every `steps` steps."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if trainer.step % self.steps == 0:
+            trainer.save()
+
+
+class StopWhenInterrupted(TrainingHook):
+    """Ends training cleanly after the step Ctrl-C arrived in (Trainer.train then saves)."""
+
+    def __init__(self, interrupt: "InterruptRequest"):
+        self.interrupt = interrupt
+
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        if self.interrupt.requested:
+            raise TrainingInterrupted(trainer.step, trainer.checkpoint_path())
+
+
+class InterruptRequest:
+    """Whether Ctrl-C was pressed: the first press asks training to stop after the current step (so
+    the saved state is a whole step, never half an optimiser or densification update); a second
+    press stops at once."""
+
+    def __init__(self):
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        console.print("[yellow]Ctrl-C: stopping after this step and saving a checkpoint (press again to stop at once)")
+
+
+@contextlib.contextmanager
+def interrupt_requests():
+    """Catch Ctrl-C as an InterruptRequest inside the block (main thread only: elsewhere signals
+    cannot be caught, and Ctrl-C stays a plain KeyboardInterrupt)."""
+    request = InterruptRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+    previous = signal.signal(signal.SIGINT, request)
+    try:
+        yield request
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -1,0 +1,369 @@
+"""The one training loop (any backbone, any method), its hooks, and loading a trained pipeline.
+
+    trainer = build_trainer(config, "gs")        # a Pipeline, Adam, the data, step and seconds
+    metrics = trainer.train()                    # progress, periodic eval, checkpoints, metrics.json
+
+`Trainer.fit(hooks)` is the loop itself: it stops at --max-steps or --max-seconds and refuses a
+run that keeps producing non-finite losses; everything else (progress bar, evaluation,
+checkpoints, the benchmarks' curves) is a `TrainingHook`. `run_training` is `mono-hdr train`: it
+claims --out first (one run per folder, no earlier run replaced unasked; docs/robustness.md).
+"""
+
+import json
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from rich.console import Console
+
+from mono_hdr_plugin.core.backbone import Backbone
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.exposure import build_view_exposures
+from mono_hdr_plugin.core.metrics import psnr
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.errors import os_error_line
+from mono_hdr_plugin.data.io import write_json
+from mono_hdr_plugin.data.outputs import OutputError, claim_output
+from mono_hdr_plugin.methods import HdrMethod, MethodConfig, Targets
+from mono_hdr_plugin.core.configs import config_from_dict, config_to_json
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.training.config import TRAIN_OUTPUTS, TrainConfig, check_train_config, hdr_supervised_views, parse_view_ratio
+from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.hooks import (CheckpointEvery, EvaluateEvery, ProgressBar, StopWhenInterrupted,
+                                            TrainingHook, TrainingInterrupted, interrupt_requests)
+from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.resume import (DATA_FLAGS, RESUME_IDENTITY_FLAGS, ResumeMismatch, changed_flags,
+                                             describe_change)
+
+console = Console(stderr=True)
+# Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
+# compilation and caches), estimate again every this many steps, over this many recent steps.
+RUN_LENGTH_WARMUP = 5
+RUN_LENGTH_EVERY = 25
+RUN_LENGTH_WINDOW = 50
+
+
+class TrainingDiverged(RuntimeError):
+    """Too many consecutive steps produced a non-finite loss or gradient, or none was finite."""
+
+
+class Trainer:
+    """Owns a pipeline (backbone + method), its optimiser and the data for one run."""
+
+    def __init__(self, config: TrainConfig, backbone_name: str, scene: SceneData):
+        check_train_config(config)
+        self.config, self.scene = config, scene
+        torch.manual_seed(config.seed)
+        ldr_share, _ = parse_view_ratio(config.hdr_view_ratio)
+        method_config = config.hdr
+        if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
+            method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
+        self.pipeline = Pipeline.create(backbone_name, config.backbone, method_config, scene.scene_info(),
+                                        build_view_exposures(config.exposure, scene))
+        self.run_length = config.max_steps
+        self.pipeline.set_run_length(self.run_length)
+        self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
+        groups = self.pipeline.parameter_groups()
+        for group in groups:
+            group["base_lr"] = group["lr"]
+        self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.view_order: list[int] = []
+        self.step = 0
+        self.train_seconds = 0.0
+        self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
+        self.history: list[dict] = []
+        self.saved_step: int | None = None
+        """Step of the checkpoint at checkpoint_path() this run wrote or resumed from (None: none yet)."""
+
+    @property
+    def backbone(self) -> Backbone:
+        return self.pipeline.backbone
+
+    @property
+    def method(self) -> HdrMethod:
+        return self.pipeline.method
+
+    @property
+    def backbone_name(self) -> str:
+        return self.pipeline.backbone_name
+
+    @property
+    def finished(self) -> bool:
+        """--max-steps reached, or --max-seconds of training spent."""
+        budget = self.config.max_seconds
+        return self.step >= self.config.max_steps or (budget is not None and self.train_seconds >= budget)
+
+    def _update_run_length(self) -> None:
+        """Under --max-seconds, re-estimate the steps that fit from the recent step time and tell
+        the backbone when the estimate moved, so its schedules end with the budget."""
+        budget = self.config.max_seconds
+        if budget is None or self.step < RUN_LENGTH_WARMUP or self.step % RUN_LENGTH_EVERY not in (0, RUN_LENGTH_WARMUP):
+            return
+        per_step = sum(self.recent_step_seconds) / len(self.recent_step_seconds)
+        remaining = max(budget - self.train_seconds, 0.0)
+        estimate = min(self.config.max_steps, self.step + max(1, int(remaining / per_step)))
+        if abs(estimate - self.run_length) > 0.02 * self.run_length:
+            self.run_length = estimate
+            self.pipeline.set_run_length(estimate)
+
+    # ----------------------------------------------------------------- training
+    def _next_view(self) -> int:
+        if not self.view_order:  # a fresh random permutation each epoch, as 3DGS does
+            self.view_order = torch.randperm(len(self.scene.train), generator=self.generator).tolist()
+        return self.view_order.pop()
+
+    def _batch(self, view: View, use_hdr: bool) -> tuple[Camera, Targets]:
+        hdr = view.hdr if use_hdr else None
+        batch_size = self.backbone.pixel_batch
+        if batch_size is None:
+            return view.camera, Targets(ldr=view.image, exposure=view.exposure, hdr=hdr)
+        height, width = view.camera.height, view.camera.width
+        flat = torch.randint(0, height * width, (batch_size,), generator=self.generator)
+        rows, cols = flat // width, flat % width
+        pixels = torch.stack([cols.float() + 0.5, rows.float() + 0.5], -1)
+        return (view.camera.with_pixels(pixels),
+                Targets(ldr=view.image[rows, cols], exposure=view.exposure,
+                        hdr=None if hdr is None else hdr[rows, cols]))
+
+    def _bad_tensors(self, loss: torch.Tensor) -> list[str]:
+        bad = [] if torch.isfinite(loss) else ["loss"]
+        for group in self.optimizer.param_groups:
+            for index, param in enumerate(group["params"]):
+                if param.grad is not None and not torch.isfinite(param.grad).all():
+                    bad.append(f"grad of {group['name']}[{index}] {tuple(param.shape)}")
+        return bad
+
+    def train_step(self) -> dict[str, Any]:
+        """One optimiser step on one training view; returns the loss terms (floats)."""
+        started = time.perf_counter()
+        index = self._next_view()
+        view = self.scene.train[index]
+        camera, targets = self._batch(view, self.hdr_views[index])
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.pipeline.learning_rate(group, self.step)
+        features, output = self.pipeline(camera, targets.exposure, view=index)
+        terms = self.pipeline.losses(output, targets, self.step)
+        loss = torch.stack(list(terms.values())).sum()
+        loss.backward()
+        bad = self._bad_tensors(loss)
+        if bad:
+            self.optimizer.zero_grad(set_to_none=True)
+        else:
+            self.optimizer.step()
+            self.pipeline.after_step(self.step, features, self.optimizer)
+            self.optimizer.zero_grad(set_to_none=True)
+        self.step += 1
+        elapsed = time.perf_counter() - started
+        self.train_seconds += elapsed
+        self.recent_step_seconds.append(elapsed)
+        self._update_run_length()
+        record = {name: value.item() for name, value in terms.items()}
+        record["loss"] = loss.item()
+        record["ldr_psnr"] = psnr(output.ldr.detach().clamp(0, 1), targets.ldr)
+        record["skipped"] = bool(bad)
+        record["bad_tensors"] = bad
+        return record
+
+    def fit(self, hooks: list[TrainingHook] = ()) -> None:
+        """Train until --max-steps or --max-seconds, calling `hooks` after every good step.
+
+        A step with a non-finite loss or gradient is skipped; --nan-patience of them in a row
+        raise TrainingDiverged.
+        """
+        failures = taken = good = 0
+        for hook in hooks:
+            hook.on_start(self)
+        try:
+            while not self.finished:
+                record = self.train_step()
+                taken += 1
+                if record["skipped"]:
+                    failures += 1
+                    console.print(f"[yellow]step {self.step}: non-finite {', '.join(record['bad_tensors'])}; "
+                                  "step skipped")
+                    if failures >= self.config.nan_patience:
+                        raise TrainingDiverged(
+                            f"{failures} consecutive steps had a non-finite loss or gradient (last: "
+                            f"{', '.join(record['bad_tensors'])}); stopped at step {self.step}. "
+                            f"{self.last_checkpoint_note()}: lower the learning rates or check the data for NaN/Inf")
+                    continue
+                failures = 0
+                good += 1
+                for hook in hooks:
+                    hook.after_step(self, record)
+            if taken and not good:  # the model is the untrained one: nothing to save or score
+                raise TrainingDiverged(
+                    f"none of the {taken} steps had a finite loss and gradients (last: "
+                    f"{', '.join(record['bad_tensors'])}), so nothing was trained, saved or scored: lower the "
+                    "learning rates or check the data for NaN/Inf")
+        finally:
+            for hook in hooks:
+                hook.on_end(self)
+
+    def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
+        """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
+        viewer's); then save, evaluate and write OUT/metrics.json (and renders). Ctrl-C stops after
+        the step in progress, saves a checkpoint and raises TrainingInterrupted."""
+        config = self.config
+        hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
+        if config.eval_every:
+            hooks.append(EvaluateEvery(config.eval_every))
+        hooks.append(CheckpointEvery(config.checkpoint_every))
+        with interrupt_requests() as interrupt:
+            # last: the step's evaluation and checkpoint come first
+            hooks = [*hooks, *extra_hooks, StopWhenInterrupted(interrupt)]
+            try:
+                self.fit(hooks)
+            except TrainingInterrupted:
+                if self.saved_step != self.step:
+                    self.save()
+                raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
+            self.save()
+            if self.pipeline.exposures is not None:
+                write_json(config.out / "learned_exposures.json", self.pipeline.exposures.report())
+        try:
+            metrics = self.evaluate(save_renders=config.save_renders)
+            write_json(config.out / "metrics.json", metrics)
+        except KeyboardInterrupt:  # the trained model is saved: resuming only evaluates
+            raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
+        except OSError as error:
+            raise OutputError(f"{os_error_line(error)}. Training finished and its checkpoint {self.checkpoint_path()} "
+                              "is saved: once fixed, score it with `mono-hdr eval --checkpoint "
+                              f"{self.checkpoint_path()}`") from error
+        return metrics
+
+    # --------------------------------------------------------------- evaluation
+    def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
+        """Test-view metrics of the current model (eval mode), with the step and training seconds."""
+        metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views,
+                           render_dir=self.config.out / "renders" if save_renders else None)
+        return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
+
+    # -------------------------------------------------------------- checkpoints
+    def checkpoint_path(self) -> Path:
+        return self.config.out / "checkpoints" / "latest.pt"
+
+    def last_checkpoint_note(self) -> str:
+        """Where the last good state is, for error messages: never a checkpoint that was not written."""
+        if self.saved_step is None:
+            return (f"No checkpoint has been written yet (--checkpoint-every {self.config.checkpoint_every}), so "
+                    "nothing of this run is kept")
+        return f"The last good checkpoint is {self.checkpoint_path()} (step {self.saved_step}); --resume continues it"
+
+    def save(self) -> None:
+        """Write OUT/checkpoints/latest.pt. Non-finite parameters never replace a good checkpoint, and
+        a file-system error (a full disk) keeps the previous one and says so."""
+        bad = [name for name, parameter in self.pipeline.named_parameters() if not torch.isfinite(parameter).all()]
+        if bad:
+            raise TrainingDiverged(f"parameters {', '.join(bad[:3])} became NaN or Inf by step {self.step} and are "
+                                   f"not saved. {self.last_checkpoint_note()}: lower the learning rates or check the "
+                                   "data for NaN/Inf")
+        try:
+            self._write_checkpoint()
+        except OSError as error:
+            raise CheckpointError(f"cannot save the checkpoint of step {self.step}: {os_error_line(error)}. "
+                                  f"{self.last_checkpoint_note()}") from error
+        self.saved_step = self.step
+
+    def _write_checkpoint(self) -> None:
+        save_checkpoint(self.checkpoint_path(), {
+            "backbone_name": self.backbone_name,
+            "config": config_to_json(self.config),
+            "data": {"scene": self.scene.name, "source": str(self.scene.metadata.get("source", "in memory")),
+                     "train_views": len(self.scene.train), "fingerprint": self.scene.fingerprint()},
+            "pipeline": self.pipeline.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "run_length": self.run_length,
+            "generator": self.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "view_order": torch.tensor(self.view_order, dtype=torch.long),
+        })
+
+    def restore(self, payload: dict[str, Any]) -> None:
+        """Load model, converters, optimiser and RNG state from a checkpoint payload, after checking
+        that it is this run's: same backbone, method and data (ResumeMismatch names what differs)."""
+        changed = self._check_resumable(payload)
+        try:
+            self.pipeline.load_state_dict(payload["pipeline"])
+            for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+                group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
+            self.optimizer.load_state_dict(payload["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as error:
+            settings = f" (changed: {', '.join(changed)})" if changed else ""
+            raise ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: its model does not fit the one these "
+                                 f"flags build{settings}: {str(error).strip().splitlines()[0][:200]}. Pass the "
+                                 "flags it was trained with, or train into another --out") from error
+        if changed:
+            console.print(f"note: resuming with changed settings: {', '.join(changed)}", markup=False)
+        self.step = payload["step"]
+        self.saved_step = payload["step"]
+        self.train_seconds = payload["train_seconds"]
+        if self.config.max_seconds is not None:  # keep the schedule the time budget had scaled to
+            self.run_length = min(payload["run_length"], self.config.max_steps)
+            self.pipeline.set_run_length(self.run_length)
+        self.generator.set_state(payload["generator"])
+        torch.set_rng_state(payload["torch_rng"])
+        self.view_order = payload["view_order"].tolist()
+
+    def _check_resumable(self, payload: dict[str, Any]) -> list[str]:
+        """Raise ResumeMismatch naming every difference that makes resuming meaningless (backbone,
+        method, converter width, data); return the other changed settings, as `--flag new (was old)`."""
+        if payload.get("backbone_name") != self.backbone_name:
+            raise self._cannot_resume([f"the checkpoint holds a {payload.get('backbone_name')!r} model, not "
+                                       f"{self.backbone_name!r}"])
+        try:
+            saved = config_from_dict(type(self.config), json.loads(payload["config"]))
+        except (KeyError, TypeError, ValueError) as error:
+            raise CheckpointError(f"{self.checkpoint_path()}: its run settings cannot be read ({error}); it was not "
+                                  "written by this version: train into another --out") from error
+        changes = changed_flags(saved, self.config)
+        reasons = [f"it was trained with {flag} {old}, not {new}" for flag, (old, new) in changes.items()
+                   if flag in RESUME_IDENTITY_FLAGS]
+        data = payload.get("data")
+        data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
+        if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
+            trained_on = (f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)" if data
+                          else "other data")
+            reasons.append(f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
+                           f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
+                           + (f"; changed: {', '.join(data_changes)}" if data_changes else ""))
+        if reasons:
+            raise self._cannot_resume(reasons)
+        return [describe_change(flag, change) for flag, change in changes.items()
+                if flag not in RESUME_IDENTITY_FLAGS | DATA_FLAGS]
+
+    def _cannot_resume(self, reasons: list[str]) -> ResumeMismatch:
+        return ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: {'; '.join(reasons)}. Pass the flags it "
+                              "was trained with to continue it, or train into another --out (or --overwrite this one)")
+
+
+def run_training(config: TrainConfig, backbone_name: str,
+                 train: Callable[[Trainer], dict[str, Any]] = Trainer.train) -> dict[str, Any]:
+    """`mono-hdr train`: claim --out (refused while another run writes it, or when it holds an earlier
+    run and neither --resume nor --overwrite says what to do), load the data, then `train` (the
+    viewer's training, or plain) and score."""
+    check_train_config(config)
+    with claim_output(config.out, "train", TRAIN_OUTPUTS, inputs=[config.data.data], overwrite=config.overwrite,
+                      keep=config.resume, keep_hint="pass --resume to continue it, ") as claim:
+        trainer = build_trainer(config, backbone_name)
+        claim.clear_previous()
+        return train(trainer)
+
+
+def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:
+    """Load the scene (unless given) and set up a Trainer, resuming when asked."""
+    check_train_config(config)
+    if scene is None:
+        from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
+
+        scene = load_scene(config.data)
+    trainer = Trainer(config, backbone_name, scene)
+    if config.resume:
+        trainer.restore(load_checkpoint(trainer.checkpoint_path()))
+        console.print(f"resumed from {trainer.checkpoint_path()} at step {trainer.step}", markup=False)
+    return trainer
