@@ -18,7 +18,8 @@ import torch
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import environment, run_cli, run_in_tmpfs, train_args, write_driver
 from hard_scenes import make_scene, make_trainer
-from mono_hdr_plugin.training import checkpoints, cli
+from mono_hdr_plugin.apps import cli
+from mono_hdr_plugin.training import checkpoints
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.outputs import OutputError
