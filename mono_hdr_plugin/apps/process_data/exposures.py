@@ -91,7 +91,8 @@ def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict
     # A setting that does not vary is left out (ratio exactly 1); a photo missing a varying one
     # is assumed to have the reference value (exposure_warnings says so).
     iso_reference, f_reference = reference["iso"] or 1.0, reference["f_number"] or 1.0
-    exposures, lacking = [], []
+    exposures: list[tuple[float | None, ExposureSource]] = []
+    lacking: list[str] = []
     for source, exif, is_raw_photo in zip(sources, exifs, raw):
         if exif.exposure_time is not None:
             iso = (exif.iso or iso_reference) if reference["iso"] else 1.0

@@ -3,7 +3,7 @@
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import AbstractSet, Any
 
 from rich.console import Console
 
@@ -112,7 +112,7 @@ def mark_registered(photos: list[PhotoRecord], model) -> None:
 
 
 def check_registered(config: ProcessDataConfig, photos: list[PhotoRecord], models: int,
-                     merged: set[str] = frozenset()) -> list[str]:
+                     merged: AbstractSet[str] = frozenset()) -> list[str]:
     """An error when too few photos are used; otherwise the warnings about the ones left out.
 
     A photo is used when structure from motion placed it or it is merged into a bracket whose
