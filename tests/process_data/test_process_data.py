@@ -15,11 +15,15 @@ from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.data.photos.exif import PhotoExif, read_exif
-from mono_hdr_plugin.apps.process_data import (PhotoRecord, ProcessDataConfig, assign_exposures, check_one_camera,
-                                          check_registered, exposure_warnings, find_photos, load_photo, process_data,
-                                          read_exposure_csv, relative_exposure)
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.process_data.exposures import (assign_exposures, exposure_warnings, read_exposure_csv,
+                                                         relative_exposure)
+from mono_hdr_plugin.apps.process_data.photos import check_one_camera, find_photos, load_photo
+from mono_hdr_plugin.apps.process_data.records import PhotoRecord
+from mono_hdr_plugin.apps.process_data.sfm import check_registered
 from mono_hdr_plugin.apps.studio.shoot import save_jpeg
 from mono_hdr_plugin.apps.studio.alignment import similarity
+from mono_hdr_plugin.core.validation import FlagError
 from process_data_photos import shoot, textured_scene
 
 ROTATION_LIMIT_DEG = 1.0
@@ -182,7 +186,7 @@ class TestCheckConfig:
         if config.out is None:
             config.out = tmp_path
             config.overwrite = True
-        with pytest.raises(DatasetError, match=message):
+        with pytest.raises(FlagError, match=message):
             process_data(config)
 
     def test_out_is_a_file(self, tmp_path):

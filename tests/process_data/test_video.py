@@ -12,6 +12,7 @@ from mono_hdr_plugin.data.photos.video import extract_frames, sharpness
 from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import render_scene
+from mono_hdr_plugin.core.validation import FlagError
 from process_data_photos import textured_scene
 
 
@@ -92,11 +93,11 @@ class TestExtractFrames:
 
 class TestVideoFlags:
     def test_images_and_video_together(self, tmp_path):
-        with pytest.raises(DatasetError, match="either --images FOLDER.*or --video FILE"):
+        with pytest.raises(FlagError, match="either --images FOLDER.*or --video FILE"):
             process_data(ProcessDataConfig(images=tmp_path, video=tmp_path / "a.mp4", out=tmp_path / "out"))
 
     def test_neither(self, tmp_path):
-        with pytest.raises(DatasetError, match="either --images FOLDER"):
+        with pytest.raises(FlagError, match="either --images FOLDER"):
             process_data(ProcessDataConfig(out=tmp_path / "out"))
 
 

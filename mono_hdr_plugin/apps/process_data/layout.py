@@ -1,0 +1,165 @@
+"""Stage 5: the HDR-GS layout written into a scratch folder (images, merged EXRs, the COLMAP model
+on a pinhole camera, exposures, splits, the camera response), then renamed into place at once."""
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+from rich.console import Console
+from rich.progress import track
+
+from mono_hdr_plugin.apps.process_data.brackets import BracketPlan, merge_plan
+from mono_hdr_plugin.apps.process_data.config import ProcessDataConfig
+from mono_hdr_plugin.apps.process_data.photos import StagedPhoto, photo_pixels
+from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord
+from mono_hdr_plugin.apps.process_data.report import ProcessReport
+from mono_hdr_plugin.apps.process_data.sfm import Reconstruction
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.io import write_exr, write_json, write_png
+from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER, RESPONSE_FILE, SPLITS_FILE
+from mono_hdr_plugin.data.loading import downscale_image
+from mono_hdr_plugin.data.photos.brackets import dynamic_range_stops
+
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
+
+
+def write_dataset(config: ProcessDataConfig, reconstruction: Reconstruction, photos: list[PhotoRecord],
+                  staged: list[StagedPhoto], plans: list[BracketPlan], hdr_views: list[HdrView],
+                  response: np.ndarray | None, work: Path, dataset: Path, console: Console) -> ProcessReport:
+    """images/, exr/, sparse/0, exposures.json, splits.json and camera_response.json; the report of them."""
+    error = reconstruction.model.compute_mean_reprojection_error()
+    model, grid = pinhole_model(reconstruction.model, photos, work, console)
+    write_images(config, photos, staged, grid, dataset, console)
+    write_hdr_views(config, plans, hdr_views, staged, response, grid, dataset, console)
+    test_views = write_metadata(config, model, photos, response, dataset)
+    camera = model.cameras[next(iter(model.cameras))]
+    return ProcessReport(out=config.out, photos=photos, camera_model=camera.model.name, width=camera.width,
+                         height=camera.height, matcher=reconstruction.matcher, mean_reprojection_error=error,
+                         num_points=model.num_points3D(), hdr_views=hdr_views, test_views=test_views)
+
+
+def pinhole_model(model, photos: list[PhotoRecord], work: Path, console: Console):
+    """The model of the dataset's views only, on a pinhole camera; the grid that remaps a photo onto it."""
+    for image in list(model.images.values()):  # one image per viewpoint: other bracket members leave the model
+        if image.has_pose and not next(p.view for p in photos if p.name == image.name):
+            model.deregister_frame(image.frame_id)
+    distorted = model.cameras[next(iter(model.cameras))]
+    if distorted.model.name not in PINHOLE_MODELS:
+        with console.status("undistorting"):
+            model = undistort(model, work / "input", work, [p.name for p in photos if p.view])
+    camera = model.cameras[next(iter(model.cameras))]
+    return model, pinhole_grid(distorted, camera)
+
+
+def write_images(config: ProcessDataConfig, photos: list[PhotoRecord], staged: list[StagedPhoto],
+                 grid: torch.Tensor | None, dataset: Path, console: Console) -> None:
+    """images/<view>.png: each view's LDR photo on the pinhole camera, downscaled (16-bit from RAW)."""
+    views = [(photo, stage) for photo, stage in zip(photos, staged) if photo.view]
+    for photo, stage in track(views, description="writing images", console=console):
+        encoded, _ = photo_pixels(stage, config.raw_response)
+        pixels = downscale_image(remap(encoded, grid), config.downscale, photo.name)
+        write_png(dataset / "images" / photo.name, pixels, bits=16 if stage.raw else 8)
+
+
+def write_hdr_views(config: ProcessDataConfig, plans: list[BracketPlan], hdr_views: list[HdrView],
+                    staged: list[StagedPhoto], response: np.ndarray | None, grid: torch.Tensor | None,
+                    dataset: Path, console: Console) -> None:
+    """exr/<view number>.exr: each bracket set merged, on the pinhole camera, downscaled; its dynamic range."""
+    for plan, hdr_view in zip(plans, hdr_views):
+        with console.status(f"merging {', '.join(hdr_view.sources)}"):
+            hdr = merge_plan(plan, staged, response, config.raw_response, hdr_view.sources)
+            hdr = downscale_image(remap(hdr, grid), config.downscale, hdr_view.name)
+        hdr_view.dynamic_range_stops = round(dynamic_range_stops(hdr), 2)
+        write_exr(dataset / "exr" / f"{hdr_view.name.split('_')[0]}.exr", hdr)
+
+
+def write_metadata(config: ProcessDataConfig, model, photos: list[PhotoRecord], response: np.ndarray | None,
+                   dataset: Path) -> list[str]:
+    """sparse/0 (intrinsics scaled to the images), exposures.json, splits.json, camera_response.json;
+    the test views."""
+    if config.downscale > 1:
+        scale_intrinsics(model, config.downscale)
+    (dataset / MODEL_FOLDER).mkdir(parents=True)
+    model.write(dataset / MODEL_FOLDER)
+    write_json(dataset / EXPOSURES_FILE, {photo.name: photo.exposure for photo in photos if photo.view})
+    test_views = choose_test_views(photos, config.test_every)
+    write_json(dataset / SPLITS_FILE, {"test": test_views})
+    if response is not None:
+        write_json(dataset / RESPONSE_FILE, {"code_values": np.linspace(0, 1, len(response)).round(6).tolist(),
+                                             "linear_rgb": response.round(8).tolist()})
+    return test_views
+
+
+def choose_test_views(photos: list[PhotoRecord], every: int) -> list[str]:
+    """Every N-th single-exposure view (bracketed views carry the only HDR supervision: they train)."""
+    singles = [photo.name for photo in photos if photo.view and photo.bracket is None]
+    return [name for position, name in enumerate(singles) if position % every == 0]
+
+
+def undistort(model, image_dir: Path, work: Path, names: list[str]):
+    """The PINHOLE model of a camera model with lens distortion (COLMAP's undistorter)."""
+    import pycolmap
+
+    distorted = work / "distorted"
+    distorted.mkdir()
+    model.write(distorted)
+    undistorted = work / "undistorted"
+    pycolmap.undistort_images(undistorted, distorted, image_dir, image_names=names, output_type="COLMAP")
+    return pycolmap.Reconstruction(undistorted / "sparse")
+
+
+def pinhole_grid(distorted, pinhole) -> torch.Tensor | None:
+    """[1, H, W, 2] grid_sample coordinates: where each pixel of the pinhole camera lies in the photo.
+
+    None when the cameras are the same (no distortion). COLMAP's pixel (0, 0) covers [0, 1]^2,
+    grid_sample's (align_corners=False) covers [-1, -1 + 2 / W], so x_grid = 2 x / W - 1.
+    """
+    if distorted.model.name in PINHOLE_MODELS:
+        return None
+    rows, cols = np.mgrid[0:pinhole.height, 0:pinhole.width].astype(np.float64) + 0.5
+    rays = pinhole.cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1))
+    pixels = distorted.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], -1), check_cheirality=False)
+    grid = pixels / np.array([distorted.width, distorted.height]) * 2 - 1
+    return torch.from_numpy(grid.reshape(1, pinhole.height, pinhole.width, 2)).float()
+
+
+def remap(image: np.ndarray, grid: torch.Tensor | None) -> np.ndarray:
+    """Bilinear resampling of float [H, W, 3] pixels (LDR or linear HDR) onto the pinhole camera."""
+    if grid is None:
+        return image
+    pixels = torch.from_numpy(np.ascontiguousarray(image, np.float32)).permute(2, 0, 1)[None]
+    sampled = torch.nn.functional.grid_sample(pixels, grid, mode="bilinear", padding_mode="border",
+                                              align_corners=False)
+    return sampled[0].permute(1, 2, 0).numpy()
+
+
+def scale_intrinsics(model, factor: int) -> None:
+    """Intrinsics and 2D observations of images shrunk by `factor` (remainder pixels cropped).
+
+    A block-averaged pixel i covers old pixels [f*i, f*(i+1)), so every image coordinate,
+    principal point and focal length is divided by f; cropping the right and bottom
+    remainder moves nothing.
+    """
+    for camera in model.cameras.values():
+        params = np.asarray(camera.params, np.float64)
+        params[list(camera.focal_length_idxs()) + list(camera.principal_point_idxs())] /= factor
+        camera.params = params
+        camera.width, camera.height = camera.width // factor, camera.height // factor
+    for image in model.images.values():
+        for point in image.points2D:
+            point.xy = np.asarray(point.xy) / factor
+
+
+def install(dataset: Path, out: Path, overwrite: bool) -> None:
+    """Move the finished dataset to `out` in one rename (the old one goes only after it succeeds)."""
+    if out.exists():
+        if not overwrite and any(out.iterdir()):
+            raise DatasetError(f"{out}: appeared while processing; pass --overwrite or choose another --out")
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        os.replace(out, old)
+        os.replace(dataset, out)
+        shutil.rmtree(old)
+    else:
+        os.replace(dataset, out)
