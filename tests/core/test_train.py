@@ -11,7 +11,7 @@ from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoin
 from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
-from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -120,12 +120,12 @@ class TestEndToEnd:
             assert key in written
         assert written["steps"] == 150 and written["backbone"] == "voxel-grid"
 
-    def test_load_pipeline_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
+    def test_load_trained_model_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
         config = make_config(tmp_path, voxel_backbone_config, max_steps=5)
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         metrics = trainer.train()
-        run = load_pipeline(trainer.checkpoint_path(), scene=voxel_scene)
-        assert run.payload["step"] == 5 and not run.pipeline.training
+        run = load_trained_model(trainer.checkpoint_path(), scene=voxel_scene)
+        assert run.step == 5 and not run.pipeline.training
         assert evaluate(run.pipeline, run.scene)["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
 
 
