@@ -19,8 +19,10 @@ import torch
 
 from mono_hdr_plugin.apps.camera_paths import viewer_from_camera
 from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.training.frames import load_model
-from mono_hdr_plugin.apps.viewer import MIN_HEIGHT, MOVING_FRAME_SECONDS, ModelSnapshots, ViewerRenderer
+from mono_hdr_plugin.training.trained import load_trained_model
+from mono_hdr_plugin.apps.viewer.gui import MIN_HEIGHT, MOVING_FRAME_SECONDS
+from mono_hdr_plugin.apps.viewer.renderer import ViewerRenderer
+from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
 
 
 def main() -> None:
@@ -30,7 +32,7 @@ def main() -> None:
     parser.add_argument("--heights", type=int, nargs="+", default=[64, 128, 256, 384])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    model = load_model(args.checkpoint)
+    model = load_trained_model(args.checkpoint)
     renderer = ViewerRenderer(ModelSnapshots(model.pipeline, model.step, copy_model=False), model.scene)
     camera = viewer_from_camera(first_per_camera(model.scene.test)[0].camera)
     aspect_camera = type(camera)(camera.wxyz, camera.position, camera.fov, 4 / 3)  # a 4:3 browser canvas

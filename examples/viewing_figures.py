@@ -14,9 +14,11 @@ import numpy as np
 
 from browser_screenshot import screenshot_when
 from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.training.frames import load_model
+from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.apps.render import render_exposure_sweep
-from mono_hdr_plugin.apps.viewer import VIEWER_OUTPUTS, ModelSnapshots, Viewer, ViewerRenderer
+from mono_hdr_plugin.apps.viewer.gui import Viewer
+from mono_hdr_plugin.apps.viewer.renderer import VIEWER_OUTPUTS, ViewerRenderer
+from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
 
 # Viser's warning that WebGL runs in software (true in a headless browser) covers the render.
 CLOSE_NOTIFICATIONS = "document.querySelectorAll('.mantine-Notification-root').forEach(n => n.remove())"
@@ -30,7 +32,7 @@ def main() -> None:
     parser.add_argument("--ev", type=float, default=1.0)
     parser.add_argument("--view", type=int, default=1, help="test camera of the sweep and the screenshot")
     args = parser.parse_args()
-    model = load_model(args.checkpoint)
+    model = load_trained_model(args.checkpoint)
     camera = first_per_camera(model.scene.test)[args.view].camera
     strip_camera = camera.scaled(2.0)  # the dataset's 64 px are small on a page
 

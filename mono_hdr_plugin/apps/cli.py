@@ -78,7 +78,7 @@ def command_train(argv: list[str]) -> None:
                                                 description="Train a backbone with Mono-HDR or a baseline.")
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
     if config.viewer:
-        from mono_hdr_plugin.apps.viewer import train_with_viewer  # noqa: PLC0415
+        from mono_hdr_plugin.apps.viewer.live_training import train_with_viewer  # noqa: PLC0415
 
         def report(metrics: dict) -> None:
             print_metrics(metrics, config.out / "metrics.json")
@@ -97,16 +97,16 @@ def command_eval(config: EvalConfig) -> None:
     from mono_hdr_plugin.data.io import write_json  # noqa: PLC0415
     from mono_hdr_plugin.training.evaluation import evaluate  # noqa: PLC0415
     from mono_hdr_plugin.data.outputs import check_output, claim_output  # noqa: PLC0415
-    from mono_hdr_plugin.training.trained import load_pipeline  # noqa: PLC0415
+    from mono_hdr_plugin.training.trained import load_trained_model  # noqa: PLC0415
 
     claim = {"command": "eval", "owned": EVAL_OUTPUTS, "overwrite": config.overwrite}
     check_output(config.out, inputs=[config.checkpoint], **claim)  # before the slow load
-    run = load_pipeline(config.checkpoint, data_path=config.data, scene_name=config.scene)
+    run = load_trained_model(config.checkpoint, data_path=config.data, scene_name=config.scene)
     with claim_output(config.out, inputs=[config.checkpoint, run.config.data.data], **claim) as output:
         output.clear_previous()
         metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
                            render_dir=config.out / "renders" if config.save_renders else None)
-        metrics.update(preset=run.config.preset, steps=run.payload["step"], train_seconds=run.payload["train_seconds"])
+        metrics.update(preset=run.config.preset, steps=run.step, train_seconds=run.train_seconds)
         write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
 
@@ -223,7 +223,7 @@ def _optional_commands() -> dict[str, tuple[type, Callable]]:
     """Commands contributed by the studio, viewing and process-data modules."""
     from mono_hdr_plugin.apps.export import ExportConfig, export_command  # noqa: PLC0415
     from mono_hdr_plugin.apps.render import RenderConfig  # noqa: PLC0415
-    from mono_hdr_plugin.apps.viewer import ViewConfig, view_command  # noqa: PLC0415
+    from mono_hdr_plugin.apps.viewer.command import ViewConfig, view_command  # noqa: PLC0415
 
     found = {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
              "export": (ExportConfig, export_command)}

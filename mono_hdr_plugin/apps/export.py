@@ -20,7 +20,7 @@ from torch import Tensor
 from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_vertices
 from mono_hdr_plugin.apps.display import to_display, to_uint8
 from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.training.frames import LoadedModel, load_model
+from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
 from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
 from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, at_least
 
@@ -68,7 +68,7 @@ def export_command(config: ExportConfig) -> None:
     if not config.scale > 0 or not 0 <= config.min_alpha <= 1 or config.max_points < 1:
         raise ValueError("need --scale > 0, 0 <= --min-alpha <= 1 and --max-points >= 1, got "
                          f"{config.scale}, {config.min_alpha}, {config.max_points}")
-    model = load_model(config.checkpoint)
+    model = load_trained_model(config.checkpoint)
     if hasattr(model.pipeline.backbone, "export_ply"):
         written = export_splats(model, config.out)
     else:
@@ -84,13 +84,13 @@ def converters_paths(ply: Path) -> tuple[Path, Path]:
     return ply.with_suffix(".converters.npz"), ply.with_suffix(".converters.json")
 
 
-def export_splats(model: LoadedModel, path: Path) -> list[Path]:
+def export_splats(model: TrainedModel, path: Path) -> list[Path]:
     """The Gaussians as a 3DGS PLY and the method's converters beside it."""
     model.pipeline.backbone.export_ply(path)
     return [path, *save_converters(model, path)]
 
 
-def save_converters(model: LoadedModel, ply: Path) -> tuple[Path, Path]:
+def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
     """OUT.converters.npz: the method's weights by state-dict name (float32); OUT.converters.json:
     format, method and its config, the exposure model, and how to apply the weights."""
     weights_path, description_path = converters_paths(ply)
@@ -148,7 +148,7 @@ def points_from_depth(origins: Tensor, directions: Tensor, depth: Tensor, alpha:
 
 
 @torch.no_grad()
-def point_cloud(model: LoadedModel, scale: float = 1.0, min_alpha: float = 0.5,
+def point_cloud(model: TrainedModel, scale: float = 1.0, min_alpha: float = 0.5,
                 max_points: int = 1_000_000) -> tuple[Tensor, Tensor, Tensor]:
     """Points [N, 3], LDR colours [N, 3] in [0, 1] (the `ldr` output at the training exposure) and
     linear HDR [N, 3] where the training views' rays terminate."""

@@ -18,8 +18,8 @@ from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.training.evaluation import first_per_camera, save_hdr_renders
 from mono_hdr_plugin.apps.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
-from mono_hdr_plugin.training.frames import LoadedModel, load_model
 from mono_hdr_plugin.training.pipeline import Frame
+from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
 from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
 
 console = Console(stderr=True)
@@ -95,7 +95,7 @@ def render_command(config: RenderConfig) -> None:
         written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
         console.print(f"wrote {len(written)} images to {config.out}")
         return
-    model = load_model(config.checkpoint)
+    model = load_trained_model(config.checkpoint)
     views = model.scene.test if config.split == "test" and model.scene.test else model.scene.train
     if config.path is not None:
         video = config.video or config.out / f"path_{config.path}.mp4"
@@ -129,7 +129,7 @@ def even_sized(camera: Camera) -> Camera:
                   near=camera.near, far=camera.far)
 
 
-def display_frame(model: LoadedModel, camera: Camera, output: str, exposure: float,
+def display_frame(model: TrainedModel, camera: Camera, output: str, exposure: float,
                   cached: Frame | None = None) -> tuple[Frame, np.ndarray]:
     """A frame of `camera` (re-used from `cached` when the output does not need a new render)
     and its uint8 display image."""
@@ -153,7 +153,7 @@ def write_video(path: Path, frames, fps: int) -> None:
                 writer.append_data(frame)
 
 
-def render_path(model: LoadedModel, cameras: list[Camera], video: Path, output: str = "ldr", ev: float = 0.0,
+def render_path(model: TrainedModel, cameras: list[Camera], video: Path, output: str = "ldr", ev: float = 0.0,
                 fps: int = 24, exr_folder: Path | None = None) -> None:
     """Render `cameras` into `video` (and their linear HDR into exr_folder/frame_NNNNN_hdr.exr)."""
     exposure = model.exposure.exposure_at(ev)
@@ -171,7 +171,7 @@ def render_path(model: LoadedModel, cameras: list[Camera], video: Path, output: 
     write_video(video, frames(), fps)
 
 
-def render_exposure_sweep(model: LoadedModel, camera: Camera, evs: list[float], video: Path, strip: Path,
+def render_exposure_sweep(model: TrainedModel, camera: Camera, evs: list[float], video: Path, strip: Path,
                           output: str = "ldr", fps: int = 6) -> list[np.ndarray]:
     """One view at each EV in `evs`: an MP4 and a strip PNG (frames side by side, EV below each).
     Returns the uint8 frames."""
@@ -210,7 +210,7 @@ def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] 
     for exposure in exposures:
         if not exposure > 0:
             raise ValueError(f"--exposures must be positive seconds, got {exposure}")
-    model = load_model(checkpoint, scene=scene)
+    model = load_trained_model(checkpoint, scene=scene)
     exposures = exposures or tuple(model.scene.train_exposures)
     written = []
     for view in first_per_camera(model.scene.test)[:max_views]:

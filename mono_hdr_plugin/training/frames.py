@@ -2,12 +2,11 @@
 exposure sweeps and exports.
 
 Everything here renders through `Pipeline.render` (the one render path, also used by
-evaluation) and loads through `load_model(checkpoint)`.
+evaluation); checkpoints load through `training.trained.load_trained_model`.
 """
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -100,30 +99,3 @@ def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
                          renders_any_exposure=pipeline.renders_any_exposure,
                          ldr_exposures=tuple(exposures) if len(exposures) == 1 else ())
 
-
-@dataclass
-class LoadedModel:
-    """A trained model ready to render: its pipeline in eval mode, the scene it was trained on
-    (cameras, ground truth) and its exposure model."""
-
-    pipeline: Pipeline
-    scene: SceneData
-    exposure: ExposureModel
-    step: int
-
-    @property
-    def backbone(self):
-        return self.pipeline.backbone
-
-    @property
-    def method(self):
-        return self.pipeline.method
-
-
-def load_model(checkpoint: Path, scene: SceneData | None = None) -> LoadedModel:
-    """A checkpoint written by `mono-hdr train`, on its own data unless `scene` is given."""
-    from mono_hdr_plugin.training.trained import load_pipeline  # noqa: PLC0415 - training code is heavy to import
-
-    pipeline, scene, _, payload = load_pipeline(checkpoint, scene=scene)
-    pipeline.eval()
-    return LoadedModel(pipeline=pipeline, scene=scene, step=payload["step"], exposure=calibrate(pipeline, scene))

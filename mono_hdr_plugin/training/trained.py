@@ -1,10 +1,11 @@
-"""Loading a trained pipeline from a checkpoint: the one loader of eval, render, view, export and
+"""Loading a trained model from a checkpoint: the one loader of eval, render, view, export and
 the benchmarks."""
 
 import dataclasses
 import json
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
-from typing import Any, NamedTuple
 
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
@@ -12,21 +13,41 @@ from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
 from mono_hdr_plugin.training.config import TrainConfig, train_config_for
+from mono_hdr_plugin.training.frames import ExposureModel, calibrate
 from mono_hdr_plugin.training.pipeline import Pipeline
 
-class TrainedRun(NamedTuple):
-    """A pipeline loaded from a checkpoint for evaluation or rendering (no optimiser)."""
+
+@dataclass
+class TrainedModel:
+    """A trained model ready to evaluate or render (no optimiser): its pipeline in eval mode, the
+    scene it renders (cameras, ground truth), its run settings, and the step and training time
+    its checkpoint reached."""
 
     pipeline: Pipeline
     scene: SceneData
     config: TrainConfig
-    payload: dict[str, Any]
+    step: int
+    train_seconds: float
+
+    @property
+    def backbone(self):
+        return self.pipeline.backbone
+
+    @property
+    def method(self):
+        return self.pipeline.method
+
+    @cached_property
+    def exposure(self) -> ExposureModel:
+        """The display scale and reference exposure of render, view and export; fitted on first use
+        (it renders a few training views), so evaluation does not pay for it."""
+        return calibrate(self.pipeline, self.scene)
 
 
-def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
-                  scene_name: str | None = None) -> TrainedRun:
-    """The trained pipeline of a checkpoint file, with its own data unless other data is given
-    (an in-memory `scene`, a dataset folder or a built-in scene name)."""
+def load_trained_model(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
+                       scene_name: str | None = None) -> TrainedModel:
+    """The trained model of a checkpoint file written by `mono-hdr train`, with its own data unless
+    other data is given (an in-memory `scene`, a dataset folder or a built-in scene name)."""
     payload = load_checkpoint(checkpoint)
     backbone_class = get_backbone(payload["backbone_name"])
     try:
@@ -50,4 +71,4 @@ def load_pipeline(checkpoint: Path, scene: SceneData | None = None, data_path: P
                               f"version ({str(error).strip().splitlines()[0][:200]}); retrain, or install the version "
                               "that wrote it") from error
     pipeline.eval()
-    return TrainedRun(pipeline, scene, config, payload)
+    return TrainedModel(pipeline, scene, config, payload["step"], payload["train_seconds"])

@@ -1,4 +1,4 @@
-"""The one training loop (any backbone, any method), its hooks, and loading a trained pipeline.
+"""The one training loop (any backbone, any method) and its hooks; training.trained loads what it saved.
 
     trainer = build_trainer(config, "gs")        # a Pipeline, Adam, the data, step and seconds
     metrics = trainer.train()                    # progress, periodic eval, checkpoints, metrics.json

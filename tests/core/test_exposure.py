@@ -233,11 +233,11 @@ class TestTraining:
         np.testing.assert_allclose(relative, np.array(self.exposures) / 0.6, rtol=0.03)
 
     def test_checkpoint_keeps_the_exposures(self, voxel_scene, voxel_backbone_config, tmp_path):
-        from mono_hdr_plugin.training.trained import load_pipeline
+        from mono_hdr_plugin.training.trained import load_trained_model
 
         trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=False)
         trainer.train()
-        loaded = load_pipeline(trainer.checkpoint_path(), scene=trainer.scene).pipeline
+        loaded = load_trained_model(trainer.checkpoint_path(), scene=trainer.scene).pipeline
         torch.testing.assert_close(loaded.exposures.relative_exposures(), trainer.pipeline.exposures.relative_exposures())
         camera, exposure = trainer.scene.test[0].camera, trainer.scene.test[0].exposure
         with trainer.pipeline.evaluating():

@@ -20,7 +20,7 @@ from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.apps.render import render_checkpoint
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 BACKBONE_CONFIGS = {
@@ -57,7 +57,7 @@ class TestSavedModelRendersAsTrained:
         trained_renders = images(tmp_path / "run" / "renders", "*_hdr.exr")
         assert len(trained_renders) == 2
 
-        run = load_pipeline(checkpoint, scene=voxel_scene)
+        run = load_trained_model(checkpoint, scene=voxel_scene)
         again = evaluate(run.pipeline, voxel_scene, max_eval_views=2, render_dir=tmp_path / "eval" / "renders")
         for key in METRIC_KEYS:
             assert again[key] == pytest.approx(metrics[key], rel=1e-6, abs=1e-9), key

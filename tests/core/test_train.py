@@ -10,8 +10,9 @@ import register_backbone  # examples/, put on sys.path by conftest
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.frames import calibrate
 from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
-from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -120,13 +121,23 @@ class TestEndToEnd:
             assert key in written
         assert written["steps"] == 150 and written["backbone"] == "voxel-grid"
 
-    def test_load_pipeline_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
+    def test_load_trained_model_restores_and_evaluates(self, tmp_path, voxel_scene, voxel_backbone_config):
         config = make_config(tmp_path, voxel_backbone_config, max_steps=5)
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         metrics = trainer.train()
-        run = load_pipeline(trainer.checkpoint_path(), scene=voxel_scene)
-        assert run.payload["step"] == 5 and not run.pipeline.training
+        run = load_trained_model(trainer.checkpoint_path(), scene=voxel_scene)
+        assert run.step == 5 and not run.pipeline.training
         assert evaluate(run.pipeline, run.scene)["hdr_psnr"] == pytest.approx(metrics["hdr_psnr"], rel=1e-5)
+
+    def test_loaded_model_fits_its_exposure_model_only_when_asked(self, tmp_path, voxel_scene, voxel_backbone_config):
+        """Eval needs no display scale: loading renders nothing; render, view and export fit it once."""
+        config = make_config(tmp_path, voxel_backbone_config, max_steps=3)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        trainer.train()
+        run = load_trained_model(trainer.checkpoint_path(), scene=voxel_scene)
+        assert "exposure" not in vars(run) and run.train_seconds == pytest.approx(trainer.train_seconds)
+        trainer.pipeline.eval()
+        assert run.exposure == calibrate(trainer.pipeline, voxel_scene) and run.exposure is run.exposure
 
 
 class TestSceneExtent:

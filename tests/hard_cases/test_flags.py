@@ -18,7 +18,7 @@ from mono_hdr_plugin.apps.render import RenderConfig
 from mono_hdr_plugin.apps.studio.commands import SynthConfig
 from mono_hdr_plugin.training.config import check_train_config, train_config_for
 from mono_hdr_plugin.core.validation import FlagError, check_flags, rules_of
-from mono_hdr_plugin.apps.viewer import ViewConfig
+from mono_hdr_plugin.apps.viewer.command import ViewConfig
 
 BUILT_IN = ("gs", "nerf", "voxel-grid")
 

@@ -3,13 +3,13 @@
 import pytest
 
 import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
-from mono_hdr_plugin.training.frames import LoadedModel, calibrate
 from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.trained import TrainedModel
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono",
-                steps: int = 20) -> tuple[Trainer, LoadedModel]:
+                steps: int = 20) -> tuple[Trainer, TrainedModel]:
     """A Trainer after `steps` steps (checkpoint written) and the same model as the viewer loads it."""
     config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
                                                      max_steps=steps, max_eval_views=1, checkpoint_every=10**9,
@@ -18,8 +18,8 @@ def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: st
     trainer = Trainer(config, backbone_name, scene)
     trainer.train()
     trainer.pipeline.eval()
-    model = LoadedModel(pipeline=trainer.pipeline, scene=scene, exposure=calibrate(trainer.pipeline, scene),
-                        step=trainer.step)
+    model = TrainedModel(pipeline=trainer.pipeline, scene=scene, config=trainer.config, step=trainer.step,
+                         train_seconds=trainer.train_seconds)
     return trainer, model
 
 

@@ -11,7 +11,10 @@ from mono_hdr_plugin.apps.display import to_uint8
 from mono_hdr_plugin.training.frames import srgb_encode
 from mono_hdr_plugin.core.metrics import hdr_metrics
 from mono_hdr_plugin.training.pipeline import RenderCancelled
-from mono_hdr_plugin.apps.viewer import ModelSnapshots, SnapshotPublisher, Viewer, ViewerRenderer, letterbox
+from mono_hdr_plugin.apps.viewer.gui import Viewer
+from mono_hdr_plugin.apps.viewer.live_training import SnapshotPublisher
+from mono_hdr_plugin.apps.viewer.renderer import ViewerRenderer, letterbox
+from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
 
 # A browser camera: 10 degrees above the rig's plane, a wide 4:3 canvas.
 BROWSER = ViewerCamera(wxyz=(0.2, -0.1, 0.6, 0.77), position=(0.0, -2.8, 0.9), fov=0.9, aspect=4 / 3)

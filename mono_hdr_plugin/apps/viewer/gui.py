@@ -1,256 +1,26 @@
-"""`mono-hdr view` and `mono-hdr train ... --viewer`: a live viewer in the browser (viser).
+"""The viser server of the viewer: its controls, and one render thread per connected browser
+(`_ClientLoop`) that renders through `ViewerRenderer` (threads: see snapshots.py)."""
 
-Controls: exposure (EV slider and exposure time), output (LDR through the camera response,
-HDR through sRGB, filmic or mu-law, depth, error against ground truth), jump to any dataset
-camera, resolution that drops while the camera moves, and saving the view as EXR + PNG.
-
-Threads. viser runs its own event loop and calls our GUI callbacks from a thread pool; each
-connected browser gets one render thread (`_ClientLoop`). During training the model lives
-in the training thread, which must never wait for rendering, so the two share it through
-`ModelSnapshots`: the training thread, between two steps, deep-copies the pipeline
-(a few MB, at most every `SnapshotPublisher.min_interval` seconds and only while a browser is
-connected) and swaps the copy in under a lock that guards nothing but that one reference.
-A published snapshot is never modified again, so render threads use it without any lock
-while training goes on with the live model.
-"""
-
-import copy
 import math
 import signal
 import threading
 import time
-from dataclasses import dataclass
-from datetime import datetime
 from pathlib import Path
-from typing import Callable, ClassVar
 
-import numpy as np
-import torch
 from rich.console import Console
 
-from mono_hdr_plugin.apps.camera_paths import ViewerCamera, camera_from_viewer, focus_point, scene_up, viewer_from_camera
-from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.data.io import write_exr, write_png
-from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.apps.display import OUTPUT_LABELS, colour_map, needs_render_at, to_display, to_uint8
-from mono_hdr_plugin.training.frames import ExposureModel, calibrate, load_model
-from mono_hdr_plugin.core.metrics import hdr_metrics, normalise_hdr, psnr
-from mono_hdr_plugin.training.pipeline import Frame, Pipeline, RenderCancelled
-from mono_hdr_plugin.training.hooks import TrainingHook
-from mono_hdr_plugin.core.validation import at_least, between
+from mono_hdr_plugin.apps.camera_paths import ViewerCamera, viewer_from_camera
+from mono_hdr_plugin.apps.viewer.renderer import ERROR_OUTPUTS, VIEWER_OUTPUTS, ViewerImage, ViewerRenderer, save_view
+from mono_hdr_plugin.training.pipeline import Frame, RenderCancelled
 
 console = Console(stderr=True)
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
-ERROR_OUTPUTS = {"error-hdr": "Error vs ground truth (HDR)", "error-ldr": "Error vs ground truth (LDR)"}
-VIEWER_OUTPUTS = {**OUTPUT_LABELS, **ERROR_OUTPUTS}
-# Largest per-pixel error the error maps show at full colour (mu-law or LDR units).
-ERROR_SCALE = 0.25
 # While the camera moves, frames aim at this many seconds; it counts as still after MOVE_SETTLE s.
 MOVING_FRAME_SECONDS = 0.1
 MOVE_SETTLE = 0.3
 MIN_HEIGHT = 24
 # During training, re-render a still view for a new snapshot at most this often.
 TRAINING_REFRESH = 2.0
-
-
-@dataclass
-class ViewConfig:
-    """Look at a trained model in the browser: exposure, tone mapping, depth, errors, dataset cameras."""
-
-    checkpoint: Path
-    """A checkpoint written by `mono-hdr train`."""
-    port: int = 7007
-    """Port to listen on (the next free one when taken; 0: any free port)."""
-    host: str = "127.0.0.1"
-    """Address to listen on. The default admits this machine only; 0.0.0.0 opens the viewer to
-    the network, with no authentication (anyone who reaches it sees the model and can save views)."""
-    out: Path = Path("outputs/viewer")
-    """Folder for views saved with the viewer's Save button."""
-    max_resolution: int = 512
-    """Longest side of a still frame in pixels (a slider in the viewer)."""
-
-    flag_rules: ClassVar = {"port": between(0, 65535), "max_resolution": at_least(1)}
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """A model the viewer may render; never modified after it was published."""
-
-    pipeline: Pipeline
-    step: int
-    version: int
-
-
-class ModelSnapshots:
-    """The latest published model, shared by the thread that owns it and the render threads."""
-
-    def __init__(self, pipeline: Pipeline, step: int, copy_model: bool = True):
-        self._lock = threading.Lock()
-        self._latest: Snapshot | None = None
-        self.publish(pipeline, step, copy_model)
-
-    def publish(self, pipeline: Pipeline, step: int, copy_model: bool = True) -> None:
-        """Make (a frozen copy of) this model the one rendered from now on. With copy_model the
-        caller may keep changing its own model: call it from the thread that changes it."""
-        if copy_model:
-            pipeline = copy.deepcopy(pipeline)
-            pipeline.eval()
-            pipeline.requires_grad_(False)
-        with self._lock:
-            version = 0 if self._latest is None else self._latest.version + 1
-            self._latest = Snapshot(pipeline, step, version)
-
-    def latest(self) -> Snapshot:
-        with self._lock:
-            return self._latest
-
-
-class SnapshotPublisher(TrainingHook):
-    """A training hook: publishes a copy of the model while someone watches.
-
-    Copies are spaced so that copying takes at most 1/20 of the training time (and at least
-    `min_interval` seconds apart): the viewer may lag, training barely notices.
-    """
-
-    def __init__(self, snapshots: ModelSnapshots, watched: Callable[[], bool], on_publish: Callable[[int], None],
-                 min_interval: float = 1.0):
-        self.snapshots, self.watched, self.on_publish = snapshots, watched, on_publish
-        self.min_interval = min_interval
-        self.interval = min_interval
-        self.published_at = -math.inf
-        self.published_step = -1
-
-    def after_step(self, trainer, record: dict) -> None:
-        if time.perf_counter() - self.published_at >= self.interval:
-            self._publish(trainer)
-
-    def on_end(self, trainer) -> None:
-        # The finished model is always shown, however the copies were spaced.
-        if self.published_step != trainer.step:
-            self._publish(trainer)
-
-    def _publish(self, trainer) -> None:
-        if not self.watched():
-            return
-        now = time.perf_counter()
-        self.snapshots.publish(trainer.pipeline, trainer.step)
-        copy_seconds = time.perf_counter() - now
-        self.interval = max(self.min_interval, 20.0 * copy_seconds)
-        self.published_at = time.perf_counter()
-        self.published_step = trainer.step
-        self.on_publish(trainer.step)
-
-
-@dataclass
-class ViewerImage:
-    """What the viewer shows: uint8 [H, W, 3], the frame it came from, and a line of text."""
-
-    image: np.ndarray
-    frame: Frame | None
-    note: str = ""
-
-
-class ViewerRenderer:
-    """The viewer's render function: a viewer camera and display settings in, an image out.
-
-    Knows nothing of viser; the live viewer calls it from its render threads.
-    """
-
-    def __init__(self, snapshots: ModelSnapshots, scene: SceneData):
-        self.snapshots, self.scene = snapshots, scene
-        cameras = [view.camera for view in scene.train]
-        self.near, self.far = min(c.near for c in cameras), max(c.far for c in cameras)
-        self.up, self.focus = scene_up(cameras), focus_point(scene, cameras)
-        self.views = {f"{split}: {view.stem}": view
-                      for split, views in (("train", scene.train), ("test", scene.test)) for view in first_per_camera(views)}
-        self._exposure_models: dict[int, ExposureModel] = {}
-        self._exposure_lock = threading.Lock()
-
-    def exposure_model(self, snapshot: Snapshot) -> ExposureModel:
-        """The snapshot's exposure model, fitted once per snapshot."""
-        with self._exposure_lock:
-            if snapshot.version not in self._exposure_models:
-                self._exposure_models = {snapshot.version: calibrate(snapshot.pipeline, self.scene)}
-            return self._exposure_models[snapshot.version]
-
-    def camera(self, viewer_camera: ViewerCamera, height: int) -> Camera:
-        return camera_from_viewer(viewer_camera, height, self.near, self.far)
-
-    def render(self, viewer_camera: ViewerCamera, height: int, output: str, ev: float,
-               cached: Frame | None = None, cancelled: Callable[[], bool] | None = None) -> ViewerImage:
-        """The image of `output` at `ev` stops from the training exposure, `height` pixels high
-        at the viewer's aspect. `cached`: a frame of the same camera and model to re-display
-        when the output allows (exposure changes need no render outside the camera response)."""
-        snapshot = self.snapshots.latest()
-        model = self.exposure_model(snapshot)
-        exposure = model.exposure_at(ev)
-        if output in ERROR_OUTPUTS:
-            return self._error_image(snapshot, model, viewer_camera, height, output, exposure)
-        if output not in OUTPUT_LABELS:
-            raise ValueError(f"unknown output {output!r}; choose one of {', '.join(VIEWER_OUTPUTS)}")
-        render_exposure = exposure if needs_render_at(output, model) else model.reference_exposure
-        frame = cached
-        wants_depth = output == "depth"
-        if (frame is None or frame.exposure != render_exposure or frame.hdr.shape[0] != height
-                or (wants_depth and frame.depth is None)):
-            frame = snapshot.pipeline.render(self.camera(viewer_camera, height), render_exposure, cancelled,
-                                             with_depth=wants_depth)
-        note = "this backbone renders no depth" if output == "depth" and frame.depth is None else ""
-        return ViewerImage(to_uint8(to_display(frame, output, exposure, model)), frame, note)
-
-    def dataset_view(self, viewer_camera: ViewerCamera, exposure: float) -> View | None:
-        """The dataset view at the viewer's pose (within a thousandth of the scene size), the one
-        nearest in exposure where the pose was photographed at several."""
-        pose = self.camera(viewer_camera, 8).c2w
-        size = float((self.scene.bounds_max - self.scene.bounds_min).norm())
-        at_pose = [view for view in self.scene.train + self.scene.test
-                   if (view.camera.center - pose[:3, 3]).norm() < 1e-3 * size
-                   and torch.allclose(view.camera.c2w[:3, :3], pose[:3, :3], atol=1e-3)]
-        return min(at_pose, key=lambda v: abs(math.log(v.exposure / exposure)), default=None)
-
-    def _error_image(self, snapshot: Snapshot, model: ExposureModel, viewer_camera: ViewerCamera, height: int,
-                     output: str, exposure: float) -> ViewerImage:
-        view = self.dataset_view(viewer_camera, exposure)
-        width = max(1, round(height * viewer_camera.aspect))
-        if view is None:
-            return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
-                               "go to a dataset camera (Camera) to compare with its ground truth")
-        if output == "error-hdr" and view.hdr is None:
-            return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
-                               f"{view.stem} has no HDR ground truth: choose the LDR error")
-        if output == "error-hdr":
-            frame = snapshot.pipeline.render(view.camera, model.reference_exposure)
-            error = (normalise_hdr(frame.hdr) - normalise_hdr(view.hdr)).abs().mean(-1)
-            note = f"{view.stem}: HDR PSNR {hdr_metrics(frame.hdr, view.hdr)['hdr_psnr']:.2f} dB (mu-law, own max)"
-        else:
-            render_exposure = view.exposure if model.renders_any_exposure else model.reference_exposure
-            frame = snapshot.pipeline.render(view.camera, render_exposure)
-            ldr = to_display(frame, "ldr", view.exposure, model)
-            error = (ldr - view.image).abs().mean(-1)
-            note = f"{view.stem} at {view.exposure:g} s: LDR PSNR {psnr(ldr, view.image):.2f} dB"
-        image = to_uint8(colour_map(error / ERROR_SCALE, "magma"))
-        return ViewerImage(letterbox(image, viewer_camera.aspect), frame, note + f"; full colour = {ERROR_SCALE} error")
-
-
-def letterbox(image: np.ndarray, aspect: float, fill: int = 40) -> np.ndarray:
-    """`image` centred on a canvas of width / height = aspect, so the viewer does not stretch it."""
-    height, width = image.shape[:2]
-    canvas_height, canvas_width = max(height, round(width / aspect)), max(width, round(height * aspect))
-    canvas = np.full((canvas_height, canvas_width, 3), fill, np.uint8)
-    top, left = (canvas_height - height) // 2, (canvas_width - width) // 2
-    canvas[top:top + height, left:left + width] = image
-    return canvas
-
-
-def save_view(out: Path, frame: Frame, image: np.ndarray, output: str) -> list[Path]:
-    """OUT/view_<time>_hdr.exr (linear HDR) and OUT/view_<time>_<output>.png (what is shown); each
-    file appears complete or not at all."""
-    stem = f"view_{datetime.now().strftime('%Y%m%d-%H%M%S-%f')}"
-    paths = [out / f"{stem}_hdr.exr", out / f"{stem}_{output}.png"]
-    write_exr(paths[0], frame.hdr.float().numpy())
-    write_png(paths[1], image.astype(np.float32) / 255.0)
-    return paths
 
 
 def viewer_camera_of(client) -> ViewerCamera:
@@ -530,36 +300,3 @@ def wait_for_interrupt() -> None:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-
-
-def view_command(config: ViewConfig) -> None:
-    model = load_model(config.checkpoint)
-    snapshots = ModelSnapshots(model.pipeline, model.step, copy_model=False)
-    viewer = Viewer(ViewerRenderer(snapshots, model.scene), host=config.host, port=config.port, out=config.out,
-                    max_resolution=config.max_resolution)
-    console.print(f"[bold]viewer of {config.checkpoint} (step {model.step}) at {viewer.url}[/bold]  (Ctrl+C to stop)")
-    try:
-        wait_for_interrupt()
-    finally:
-        viewer.stop()
-    console.print("viewer stopped")
-
-
-def train_with_viewer(trainer, report: Callable[[dict], None]) -> dict:
-    """Train while a viewer shows the model (training never waits for it); after training the
-    viewer stays open on the final model until Ctrl+C. `report` receives the metrics first."""
-    config = trainer.config
-    snapshots = ModelSnapshots(trainer.pipeline, trainer.step)
-    viewer = Viewer(ViewerRenderer(snapshots, trainer.scene), host=config.viewer_host, port=config.viewer_port,
-                    out=config.out / "viewer", training=True)
-    console.print(f"[bold]viewer at {viewer.url}[/bold]")
-    try:
-        metrics = trainer.train(extra_hooks=[SnapshotPublisher(snapshots, viewer.has_clients, viewer.training_step)])
-        snapshots.publish(trainer.pipeline, trainer.step)
-        viewer.training_step(trainer.step)
-        report(metrics)
-        console.print(f"[bold]training done; the viewer stays at {viewer.url}[/bold]  (Ctrl+C to stop)")
-        wait_for_interrupt()
-    finally:
-        viewer.stop()
-    return metrics
