@@ -122,17 +122,16 @@ def command_render(config: Any) -> None:
 
 
 def command_bench(argv: list[str]) -> None:
-    from mono_hdr_plugin.apps.bench import all_benchmarks  # noqa: PLC0415
+    import mono_hdr_plugin.apps.bench  # noqa: F401, PLC0415 - registers the built-in benchmarks
+    from mono_hdr_plugin.core.registry import BENCHMARKS  # noqa: PLC0415
 
-    benchmarks = all_benchmarks()
-    config = tyro.extras.subcommand_cli_from_dict({name: cls for name, (cls, _) in benchmarks.items()}, args=argv,
-                                                  prog="mono-hdr bench",
+    benchmarks = {name: entry.plugin for name, entry in BENCHMARKS.available().items()}
+    config = tyro.extras.subcommand_cli_from_dict(benchmarks, args=argv, prog="mono-hdr bench",
                                                   description="Accuracy versus time: curves, the paper's tables, and "
-                                                              "what each backbone contributes (3DGS: raster).")
-    function = next(function for cls, function in benchmarks.values() if isinstance(config, cls))
+                                                              "what plugins contribute (3DGS: raster).")
     check_flags(config)
     config.out.mkdir(parents=True, exist_ok=True)
-    function(config)
+    config.run()
 
 
 def command_backbones(config: BackbonesConfig) -> None:
