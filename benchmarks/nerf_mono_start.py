@@ -19,13 +19,13 @@ import torch
 
 from backbones.nerf import NerfBackbone
 from mono_hdr_plugin.apps.bench.runs import cached_scene, run_facts
+from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.methods import MethodConfig
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
-OFFICIAL_CONVERTER_LR = 5e-4
 VARIANTS = {  # name -> (method, MethodConfig overrides)
     "mono, official": ("mono", {"converter_lr": OFFICIAL_CONVERTER_LR}),
     "mono, field rate": ("mono", {}),
