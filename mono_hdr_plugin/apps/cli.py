@@ -219,25 +219,17 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 
 
 def _optional_commands() -> dict[str, tuple[type, Callable]]:
-    """Commands contributed by the studio, viewing and process-data modules."""
+    """Commands of the studio, viewing and process-data modules (imported only when the command line
+    is built; a broken import shows as the error it is, not as a missing command)."""
     from mono_hdr_plugin.apps.export import ExportConfig, export_command  # noqa: PLC0415
+    from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
     from mono_hdr_plugin.apps.render import RenderConfig  # noqa: PLC0415
+    from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
     from mono_hdr_plugin.apps.viewer import ViewConfig, view_command  # noqa: PLC0415
 
-    found = {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
-             "export": (ExportConfig, export_command)}
-    try:
-        from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
-        found["scenes"] = (ScenesConfig, list_scenes_command)
-        found["synth"] = (SynthConfig, synth)
-    except ImportError:
-        pass
-    try:
-        from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
-        found["process-data"] = (ProcessDataConfig, process_data_command)
-    except ImportError:
-        pass
-    return found
+    return {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
+            "export": (ExportConfig, export_command), "scenes": (ScenesConfig, list_scenes_command),
+            "synth": (SynthConfig, synth), "process-data": (ProcessDataConfig, process_data_command)}
 
 
 def main(argv: list[str] | None = None) -> None:
