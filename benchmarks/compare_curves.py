@@ -9,10 +9,10 @@ OUT/compare.png (HDR and LDR PSNR against training seconds, a row of panels per 
 run and row).
 """
 
-import argparse
 import json
 from pathlib import Path
 
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.curves import plot_curves
 from mono_hdr_plugin.apps.bench.report import fmt, label
 
@@ -41,11 +41,11 @@ def comparison_table(runs: list[dict], names: list[str]) -> list[str]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = args_of.script_parser(__doc__)
     parser.add_argument("before", type=Path)
     parser.add_argument("after", type=Path)
     parser.add_argument("--names", nargs=2, default=["before", "after"])
-    parser.add_argument("--out", type=Path, required=True)
+    args_of.add_out(parser, None)
     args = parser.parse_args()
     runs = [finished_rows(args.before), finished_rows(args.after)]
     if not set(runs[0]) & set(runs[1]):

@@ -9,7 +9,6 @@ preset; every variant runs on every scene given, with Mono-HDR and both baseline
         --variant base --variant "lr_sh_dc=0.0025" --out benchmarks/results/gs_cpu_sweep
 """
 
-import argparse
 import copy
 import json
 import os
@@ -19,19 +18,13 @@ from pathlib import Path
 import torch
 
 from backbones.gs import GaussianBackbone
-from mono_hdr_plugin.apps.bench.runs import parse_override, set_override
+from mono_hdr_plugin.apps.bench import script_args as args_of
+from mono_hdr_plugin.apps.bench.runs import set_override
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
-
-
-def parse_variant(text: str) -> tuple[str, tuple[tuple[str, object], ...]]:
-    """'base' or 'name=value,strategy.name=value,...': overrides of the backbone config."""
-    if text == "base":
-        return text, ()
-    return text, tuple(parse_override(item) for item in text.split(","))
 
 
 def configured(preset: str, overrides: tuple[tuple[str, object], ...]):
@@ -65,21 +58,22 @@ def run(scene_name: str, method: str, preset: str, overrides: tuple, steps: int,
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="+", default=["demo"])
-    parser.add_argument("--methods", nargs="+", default=["mono"])
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, ["demo"])
+    args_of.add_methods(parser, ["mono"])
     parser.add_argument("--preset", default="cpu")
-    parser.add_argument("--variant", action="append", default=None, help="'base' or key=value,... overrides")
-    parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--eval-every", type=int, default=1000)
-    parser.add_argument("--eval-views", type=int, default=6)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/gs_cpu_sweep"))
+    args_of.add_variants(parser, "lr_sh_dc=0.0025")
+    args_of.add_count(parser, "--steps", 3000)
+    args_of.add_count(parser, "--eval-every", 1000, "steps between evaluations")
+    args_of.add_count(parser, "--eval-views", 6, "test views per evaluation")
+    args_of.add_out(parser, Path("benchmarks/results/gs_cpu_sweep"))
     parser.add_argument("--label", default="", help="stored with the results: the load they ran under")
     args = parser.parse_args()
     torch.set_num_threads(1)
     results_path = args.out / "sweep.json"
     results = json.loads(results_path.read_text()) if results_path.is_file() else {"runs": []}
-    for name, overrides in map(parse_variant, args.variant or ["base"]):
+    for name in args.variant or ["base"]:
+        overrides = args_of.variant_overrides(name)
         for scene in args.scenes:
             for method in args.methods:
                 record = run(scene, method, args.preset, overrides, args.steps, args.eval_every, args.eval_views,

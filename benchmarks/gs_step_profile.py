@@ -8,7 +8,6 @@ whole step. Prints a Markdown table; `--out FILE` writes it too.
     python benchmarks/gs_step_profile.py --scene demo --warmup 300 --repeats 11 --out benchmarks/results/gs_step_profile.md
 """
 
-import argparse
 import os
 import statistics
 import time
@@ -19,6 +18,7 @@ import torch
 from backbones.gs import GAUSSIAN_PARAMETERS, GaussianBackbone
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.core.losses import l1_dssim_loss
@@ -135,12 +135,12 @@ def table(seconds: list[tuple[str, float]], facts: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="demo")
-    parser.add_argument("--warmup", type=int, default=300)
-    parser.add_argument("--repeats", type=int, default=15)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path)
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, "demo")
+    args_of.add_count(parser, "--warmup", 300, "training steps before timing")
+    args_of.add_count(parser, "--repeats", 15, "timed steps (median)")
+    args_of.add_threads(parser, 1)
+    parser.add_argument("--out", type=Path, help="also write the table here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     text = table(*profile(args.scene, args.warmup, args.repeats))

@@ -20,14 +20,14 @@ scores the test views:
 Writes mu-law PNGs of the first test view (prediction and GT, own max) to --out.
 """
 
-import argparse
 import json
 import tempfile
 from pathlib import Path
 
 import torch
 
-from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene, parse_override
+from mono_hdr_plugin.apps.bench import script_args as args_of
+from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
 from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.core.metrics import mu_law, psnr, tone_mapped_pair
 
@@ -68,15 +68,14 @@ def probe(method: str, scene_name: str, steps: int, out: Path, overrides: tuple 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", default="lamp-room")
-    parser.add_argument("--methods", nargs="+", default=["mono", "hdr-nerf"])
-    parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--out", type=Path, default=Path("outputs/nerf_hdr_error_probe"))
-    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="overrides of the run's config, e.g. backbone.field.color_activation=sigmoid")
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, "lamp-room")
+    args_of.add_methods(parser, ["mono", "hdr-nerf"])
+    args_of.add_count(parser, "--steps", 1500)
+    args_of.add_out(parser, Path("outputs/nerf_hdr_error_probe"))
+    args_of.add_overrides(parser)
     args = parser.parse_args()
-    overrides = tuple(parse_override(text) for text in args.set)
+    overrides = args_of.overrides(args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     label = "".join(f"_{key.rsplit('.', 1)[-1]}-{value}" for key, value in overrides)
     results = {}

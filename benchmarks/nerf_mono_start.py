@@ -11,21 +11,21 @@ steps. Counted in steps, with the CPU seconds beside them, so runs made on a bus
 comparable; one recipe per row, the same for every method.
 """
 
-import argparse
 import time
 from pathlib import Path
 
 import torch
 
 from backbones.nerf import NerfBackbone
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import cached_scene, run_facts
+from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.methods import MethodConfig
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
-OFFICIAL_CONVERTER_LR = 5e-4
 VARIANTS = {  # name -> (method, MethodConfig overrides)
     "mono, official": ("mono", {"converter_lr": OFFICIAL_CONVERTER_LR}),
     "mono, field rate": ("mono", {}),
@@ -74,15 +74,15 @@ def markdown(results: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="demo")
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--every", type=int, default=50)
-    parser.add_argument("--eval-views", type=int, default=8)
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, "demo")
+    args_of.add_count(parser, "--steps", 300)
+    args_of.add_count(parser, "--every", 50, "steps between evaluations")
+    args_of.add_count(parser, "--eval-views", 8, "test views per evaluation")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    args_of.add_threads(parser)
     parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/nerf_mono_start"))
+    args_of.add_out(parser, Path("benchmarks/results/nerf_mono_start"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     results = {"facts": run_facts(), "scene": args.scene, "steps": args.steps, "eval_views": args.eval_views,

@@ -8,10 +8,10 @@ views) every 400 steps. Made to study why Mono-HDR-NeRF stalls on lamp-room (REA
 accuracy costs in time"): at equal steps its grid keeps a quarter of the cells HDR-NeRF keeps.
 """
 
-import argparse
 import tempfile
 from pathlib import Path
 
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
 from mono_hdr_plugin.training.hooks import TrainingHook
 
@@ -30,10 +30,10 @@ class OccupancyAlong(TrainingHook):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", default="lamp-room")
-    parser.add_argument("--methods", nargs="+", default=["mono", "hdr-nerf"])
-    parser.add_argument("--steps", type=int, default=1200)
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, "lamp-room")
+    args_of.add_methods(parser, ["mono", "hdr-nerf"])
+    args_of.add_count(parser, "--steps", 1200)
     parser.add_argument("--threshold", type=float, default=None, help="occupancy_threshold (default: the preset's)")
     args = parser.parse_args()
     overrides = () if args.threshold is None else (("backbone.field.occupancy_threshold", args.threshold),)

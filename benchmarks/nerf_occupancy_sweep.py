@@ -13,18 +13,11 @@ Writes OUT/sweep.json (rows as `bench curves` stores them; an interrupted sweep 
 OUT/sweep.md (HDR / LDR PSNR at each evaluation, step time, share of seen cells kept at the end).
 """
 
-import argparse
 import sys
 from pathlib import Path
 
-from mono_hdr_plugin.apps.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override
-
-
-def parse_variant(text: str) -> tuple[tuple[str, object], ...]:
-    """'base' -> (); 'name=value,name=value' -> overrides of backbone.field."""
-    if text == "base":
-        return ()
-    return tuple(parse_override(f"backbone.field.{item}") for item in text.split(","))
+from mono_hdr_plugin.apps.bench import script_args as args_of
+from mono_hdr_plugin.apps.bench.runs import ExecutorConfig, RowStore, RunBudget, RunSpec, execute
 
 
 def variant_name(spec: dict) -> str:
@@ -50,16 +43,16 @@ def write_report(store: RowStore, path: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", nargs="+", default=["lamp-room"])
-    parser.add_argument("--methods", nargs="+", default=["mono"])
-    parser.add_argument("--variant", action="append", default=None, help="'base' or name=value,... (field overrides)")
-    parser.add_argument("--seconds", type=float, default=120.0)
-    parser.add_argument("--eval-points", type=int, default=3)
-    parser.add_argument("--eval-views", type=int, default=8)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/nerf_occupancy_sweep"))
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, ["lamp-room"])
+    args_of.add_methods(parser, ["mono"])
+    args_of.add_variants(parser, "occupancy_threshold=0.001, fields of backbone.field")
+    args_of.add_seconds(parser, 120.0)
+    args_of.add_count(parser, "--eval-points", 3, "evaluations along each run")
+    args_of.add_count(parser, "--eval-views", 8, "test views per evaluation")
+    args_of.add_out(parser, Path("benchmarks/results/nerf_occupancy_sweep"))
     args = parser.parse_args()
-    variants = [parse_variant(text) for text in args.variant or ["base"]]
+    variants = [args_of.variant_overrides(text, "backbone.field.") for text in args.variant or ["base"]]
     specs = [RunSpec(backbone="nerf", method=method, scene=scene, overrides=overrides)
              for overrides in variants for scene in args.scenes for method in args.methods]
     budget = RunBudget(seconds=args.seconds, eval_points=args.eval_points, max_eval_views=args.eval_views)

@@ -18,7 +18,6 @@ of the ordinary training step, with wall-clock timers wrapped around its parts:
 Timers wrap the objects of one trainer from the outside, so the step itself runs unchanged.
 """
 
-import argparse
 import functools
 import json
 import statistics
@@ -29,6 +28,7 @@ from pathlib import Path
 
 import torch
 
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
 
 PHASES = ("sampling", "field", "l2h/crf", "composite", "backward", "optimiser", "density grid", "other")
@@ -133,14 +133,15 @@ def markdown(result: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="demo")
-    parser.add_argument("--method", default="mono")
+    parser = args_of.script_parser(__doc__)
+    args_of.add_scenes(parser, "demo")
+    args_of.add_methods(parser, "mono")
     parser.add_argument("--preset", default=None)
-    parser.add_argument("--warmup", type=int, default=60)
-    parser.add_argument("--steps", type=int, default=40)
-    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    parser.add_argument("--rays", type=int, default=None, help="rays per step (default: the preset's)")
+    args_of.add_count(parser, "--warmup", 60, "training steps before timing")
+    args_of.add_count(parser, "--steps", 40, help="timed steps")
+    args_of.add_threads(parser)
+    parser.add_argument("--rays", type=args_of.COUNT, default=None,
+                        help="rays per step (default: the preset's)")
     parser.add_argument("--json", type=Path, default=None, help="also write the result here")
     args = parser.parse_args()
     result = profile(args.scene, args.method, args.preset, args.warmup, args.steps, args.threads, args.rays)

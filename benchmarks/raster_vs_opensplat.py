@@ -11,12 +11,13 @@ figure per size is the median over rounds of each run's median of 5.
         --anchor path/to/opensplat-anchor --out benchmarks/results/raster_vs_opensplat.json
 """
 
-import argparse
 import json
 import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+from mono_hdr_plugin.apps.bench import script_args as args_of
 
 SIZES = ((10_000, 128, 128), (50_000, 256, 256))
 
@@ -27,10 +28,10 @@ def run_json(command: list[str]) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = args_of.script_parser(__doc__)
     parser.add_argument("--anchor", type=Path, required=True, help="folder holding bench_anchor_opensplat.py")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/raster_vs_opensplat.json"))
-    parser.add_argument("--rounds", type=int, default=3)
+    args_of.add_out(parser, Path("benchmarks/results/raster_vs_opensplat.json"))
+    args_of.add_count(parser, "--rounds", 3, "timed rounds of each (median)")
     args = parser.parse_args()
     records = []
     for gaussians, height, width in SIZES:

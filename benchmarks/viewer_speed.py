@@ -6,7 +6,6 @@ viewer's still and moving sizes, and the size it picks while the camera moves.
 Run on a quiet machine: the figures are wall-clock seconds of one render thread.
 """
 
-import argparse
 import json
 import math
 import platform
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import torch
 
+from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.camera_paths import viewer_from_camera
 from mono_hdr_plugin.training.evaluation import first_per_camera
 from mono_hdr_plugin.training.trained import load_trained_model
@@ -26,11 +26,11 @@ from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = args_of.script_parser(__doc__)
     parser.add_argument("--checkpoint", type=Path, required=True)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--heights", type=int, nargs="+", default=[64, 128, 256, 384])
-    parser.add_argument("--repeats", type=int, default=5)
+    args_of.add_out(parser, None)
+    parser.add_argument("--heights", type=args_of.COUNT, nargs="+", default=[64, 128, 256, 384])
+    args_of.add_count(parser, "--repeats", 5, "timed renders per height (median)")
     args = parser.parse_args()
     model = load_trained_model(args.checkpoint)
     renderer = ViewerRenderer(ModelSnapshots(model.pipeline, model.step, copy_model=False), model.scene)

@@ -1,8 +1,8 @@
 """Rasteriser speed, side by side in one run.
 
-Not a test: timings depend on the machine. The 3DGS backbone contributes it to `mono-hdr bench`
-(`GaussianBackbone.benchmarks`): `mono-hdr bench raster --out OUT` prints a table and writes
-OUT/raster.json. On seeded random scenes (10k Gaussians at 128 x 128, 50k at 256 x 256) it times:
+Not a test: timings depend on the machine. Registered as `mono-hdr bench raster` (the
+`mono_hdr.benchmarks` entry point of this package): `mono-hdr bench raster --out OUT` prints a table
+and writes OUT/raster.json. On seeded random scenes (10k Gaussians at 128 x 128, 50k at 256 x 256) it times:
 
 - forward + backward of what a training step rasterises: SH colours (degree 3) of the visible
   Gaussians, projection, compositing; 3 channels (LDR only, what other CPU rasterisers do)
@@ -21,7 +21,7 @@ import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, ClassVar
 
 import torch
 
@@ -30,12 +30,15 @@ from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.converters import L2HColorConverter
+from mono_hdr_plugin.core.registry import register_benchmark
+from mono_hdr_plugin.core.validation import at_least
 from mono_hdr_plugin.data.io import write_json
-from mono_hdr_plugin.methods import MethodConfig, MonoHDR
 
 SIZES = ((10_000, 128, 128), (50_000, 256, 256))
 
 
+@register_benchmark("raster")
 @dataclass
 class BenchRasterConfig:
     """3DGS rasteriser: forward + backward of a training pass (3 and 6 channels, C++ kernel and
@@ -47,6 +50,11 @@ class BenchRasterConfig:
     """Timed runs per measurement (median), after a warm-up."""
     torch_twin: bool = True
     """Also time the pure-torch twin (slow: seconds per pass at 50k Gaussians)."""
+
+    flag_rules: ClassVar = {"repeats": at_least(1)}
+
+    def run(self) -> list[dict[str, Any]]:
+        return bench_raster(self.out, repeats=self.repeats, with_torch_twin=self.torch_twin)
 
 
 def anchor_scene(gaussians: int, height: int, width: int, seed: int = 0) -> tuple[Camera, dict]:
@@ -96,14 +104,15 @@ def _training_pass(camera: Camera, scene: dict, backend: str, channels: int) -> 
 
 
 def _render_passes(camera: Camera, scene: dict) -> dict[str, Callable[[], None]]:
-    """Render one view without gradients: LDR only, and with Mono-HDR's HDR branch."""
+    """Render one view without gradients: LDR only, and with Mono-HDR's HDR branch as its method
+    renders in eval mode (L2H-CC on the visible Gaussians' colours, one 6-channel composite)."""
     info = SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=[])
     backbone = GaussianBackbone(GaussianConfig(random_init_points=1), info)
     backbone.load_gaussians({"means": scene["means"], "sh_dc": scene["sh"][:, :1], "sh_rest": scene["sh"][:, 1:],
                              "log_scales": scene["log_scales"], "quats": scene["quats"],
                              "opacity_logits": scene["opacity_logits"]})
     backbone.active_sh_degree = 3
-    method = MonoHDR(MethodConfig(), backbone.loss_kind).eval()
+    l2h = L2HColorConverter().eval()
 
     @torch.no_grad()
     def ldr():
@@ -112,7 +121,9 @@ def _render_passes(camera: Camera, scene: dict) -> dict[str, Callable[[], None]]
 
     @torch.no_grad()
     def ldr_hdr():
-        method(backbone.render_ldr_features(camera), 1.0)
+        features = backbone.render_ldr_features(camera)
+        hdr = l2h(features.colors if features.l2h_inputs is None else features.l2h_inputs)
+        features.composite(torch.cat([features.colors, hdr], dim=-1))
 
     return {"render_ldr": ldr, "render_ldr_hdr": ldr_hdr}
 
@@ -181,7 +192,3 @@ def time_training_pass(gaussians: int, height: int, width: int, runs: int = 5) -
         times.append(time.perf_counter() - start)
     return {"gaussians": gaussians, "height": height, "width": width, "fwd_bwd_s": statistics.median(times),
             "threads": torch.get_num_threads()}
-
-
-def bench_raster_command(config: BenchRasterConfig) -> list[dict]:
-    return bench_raster(config.out, repeats=config.repeats, with_torch_twin=config.torch_twin)

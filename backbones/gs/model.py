@@ -126,13 +126,6 @@ class GaussianBackbone(Backbone):
         return means, torch.rand(config.random_init_points, 3)
 
     @classmethod
-    def benchmarks(cls) -> dict:
-        """`mono-hdr bench raster`: the C++ kernel against its torch twin, 3 vs 6 channels."""
-        from backbones.gs.benchmark import BenchRasterConfig, bench_raster_command  # noqa: PLC0415
-
-        return {"raster": (BenchRasterConfig, bench_raster_command)}
-
-    @classmethod
     def tuning_space(cls, config: GaussianConfig) -> dict[str, tuple]:
         """The recipe table's grid, around the cpu preset's base-colour and position rates."""
         return {"lr_sh_dc": (0.005, 0.01), "lr_means": (1.6e-4, 4.8e-4)}

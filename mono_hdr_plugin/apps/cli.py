@@ -122,17 +122,16 @@ def command_render(config: Any) -> None:
 
 
 def command_bench(argv: list[str]) -> None:
-    from mono_hdr_plugin.apps.bench import all_benchmarks  # noqa: PLC0415
+    import mono_hdr_plugin.apps.bench  # noqa: F401, PLC0415 - registers the built-in benchmarks
+    from mono_hdr_plugin.core.registry import BENCHMARKS  # noqa: PLC0415
 
-    benchmarks = all_benchmarks()
-    config = tyro.extras.subcommand_cli_from_dict({name: cls for name, (cls, _) in benchmarks.items()}, args=argv,
-                                                  prog="mono-hdr bench",
+    benchmarks = {name: entry.plugin for name, entry in BENCHMARKS.available().items()}
+    config = tyro.extras.subcommand_cli_from_dict(benchmarks, args=argv, prog="mono-hdr bench",
                                                   description="Accuracy versus time: curves, the paper's tables, and "
-                                                              "what each backbone contributes (3DGS: raster).")
-    function = next(function for cls, function in benchmarks.values() if isinstance(config, cls))
+                                                              "what plugins contribute (3DGS: raster).")
     check_flags(config)
     config.out.mkdir(parents=True, exist_ok=True)
-    function(config)
+    config.run()
 
 
 def command_backbones(config: BackbonesConfig) -> None:
@@ -214,31 +213,23 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
         "layouts": (LayoutsConfig.__doc__, simple(LayoutsConfig, command_layouts, "layouts")),
         "bench": ("bench curves|paper|raster: what accuracy costs in time (JSON, Markdown, plots)", command_bench),
     }
-    for name, (config_class, function) in _optional_commands().items():
+    for name, (config_class, function) in _application_commands().items():
         commands[name] = (config_class.__doc__, simple(config_class, function, name))
     return commands
 
 
-def _optional_commands() -> dict[str, tuple[type, Callable]]:
-    """Commands contributed by the studio, viewing and process-data modules."""
+def _application_commands() -> dict[str, tuple[type, Callable]]:
+    """Commands of the studio, viewing and process-data modules (imported only when the command line
+    is built; a broken import shows as the error it is, not as a missing command)."""
     from mono_hdr_plugin.apps.export import ExportConfig, export_command  # noqa: PLC0415
+    from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
     from mono_hdr_plugin.apps.render import RenderConfig  # noqa: PLC0415
+    from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
     from mono_hdr_plugin.apps.viewer.command import ViewConfig, view_command  # noqa: PLC0415
 
-    found = {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
-             "export": (ExportConfig, export_command)}
-    try:
-        from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
-        found["scenes"] = (ScenesConfig, list_scenes_command)
-        found["synth"] = (SynthConfig, synth)
-    except ImportError:
-        pass
-    try:
-        from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
-        found["process-data"] = (ProcessDataConfig, process_data_command)
-    except ImportError:
-        pass
-    return found
+    return {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
+            "export": (ExportConfig, export_command), "scenes": (ScenesConfig, list_scenes_command),
+            "synth": (SynthConfig, synth), "process-data": (ProcessDataConfig, process_data_command)}
 
 
 def main(argv: list[str] | None = None) -> None:

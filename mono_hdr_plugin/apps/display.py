@@ -24,7 +24,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mono_hdr_plugin.training.frames import ExposureModel, srgb_encode
+from mono_hdr_plugin.core.colour import srgb_encode
+from mono_hdr_plugin.training.frames import ExposureModel
 from mono_hdr_plugin.training.pipeline import Frame
 from mono_hdr_plugin.core.metrics import mu_law
 

@@ -22,7 +22,7 @@ from mono_hdr_plugin.apps.display import to_display, to_uint8
 from mono_hdr_plugin.training.evaluation import first_per_camera
 from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
 from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
-from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, at_least
+from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, FlagError, at_least
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
@@ -63,11 +63,8 @@ class ExportConfig:
 
 
 def export_command(config: ExportConfig) -> None:
-    if config.out.suffix.lower() != ".ply":
-        raise ValueError(f"--out must name a .ply file, got {config.out}")
-    if not config.scale > 0 or not 0 <= config.min_alpha <= 1 or config.max_points < 1:
-        raise ValueError("need --scale > 0, 0 <= --min-alpha <= 1 and --max-points >= 1, got "
-                         f"{config.scale}, {config.min_alpha}, {config.max_points}")
+    if config.out.suffix.lower() != ".ply":  # --format ply: the suffix must agree (flag_rules cover the numbers)
+        raise FlagError(f"--out must name a .ply file, got {config.out}")
     model = load_trained_model(config.checkpoint)
     if hasattr(model.pipeline.backbone, "export_ply"):
         written = export_splats(model, config.out)

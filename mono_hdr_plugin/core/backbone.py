@@ -107,11 +107,6 @@ class Backbone(torch.nn.Module):
         self.max_steps = 30_000
 
     @classmethod
-    def benchmarks(cls) -> dict[str, tuple[type, Callable[[Any], Any]]]:
-        """Benchmarks this backbone adds to `mono-hdr bench`: name -> (config dataclass, function)."""
-        return {}
-
-    @classmethod
     def tuning_space(cls, config: Any) -> dict[str, tuple]:
         """What `mono-hdr bench paper`'s recipe table tunes for every method alike, for runs with
         `config` (a preset's): a field path of the config -> candidate values (each method gets

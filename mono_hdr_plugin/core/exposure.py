@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from mono_hdr_plugin.core.colour import decode_curve
 from mono_hdr_plugin.core.validation import POSITIVE
 
 RESPONSE_LEVELS = 256
@@ -56,9 +57,7 @@ class ExposureConfig:
 
 def srgb_response() -> np.ndarray:
     """The sRGB curve as a response table [256, 3]: code value k / 255 -> linear exposure."""
-    import colour
-
-    return np.stack([colour.cctf_decoding(np.linspace(0.0, 1.0, RESPONSE_LEVELS), function="sRGB")] * 3, -1)
+    return np.stack([decode_curve(np.linspace(0.0, 1.0, RESPONSE_LEVELS), "srgb")] * 3, -1)
 
 
 def decode(code: Tensor, response: Tensor) -> Tensor:
@@ -174,9 +173,23 @@ class ViewExposures(nn.Module):
 
 def choose_reference(exposures: list[float], brightness: list[float]) -> int:
     """The training view with the median exposure (ties: the median brightness): the canonical LDR
-    image is then a typical photo, with as little clipping either way as the capture allows."""
+    image is then a typical photo, with as little clipping either way as the capture allows.
+
+    The one reference rule. Training fixes this view's exposure (ViewExposures) and the viewer,
+    videos and exports show it as EV 0 (`training.frames.calibrate`): EV 0 must be the exposure
+    the model is anchored at, so both use this rule (the viewer once took the lower middle of the
+    distinct exposures, and showed EV 0 one stop off the anchor for an even count). The median is
+    over the views, so a capture shot mostly at one exposure is anchored there; for an even count
+    it is the upper of the two middle views (of 0.15, 0.3, 0.6, 1.2 s: 0.6 s), the brighter photo,
+    whose shadows are less lost in noise, and the rule training has always used.
+    """
     order = sorted(range(len(exposures)), key=lambda i: (exposures[i], brightness[i]))
     return order[len(order) // 2]
+
+
+def reference_view(views) -> int:
+    """Index of the reference view among training views (with .exposure and .image): `choose_reference`."""
+    return choose_reference([view.exposure for view in views], [float(view.image.mean()) for view in views])
 
 
 def photometric_log_exposures(views, points: Tensor, response: np.ndarray, reference: int,
@@ -228,8 +241,7 @@ def build_view_exposures(config: ExposureConfig, scene) -> ViewExposures | None:
     exposures = [view.exposure for view in scene.train]
     if not learn and len({round(math.log(e), 6) for e in exposures}) == 1:
         return None
-    brightness = [float(view.image.mean()) for view in scene.train]
-    reference = choose_reference(exposures, brightness)
+    reference = reference_view(scene.train)
     response = scene.metadata.get("camera_response")
     response = np.asarray(response) if response is not None else srgb_response()
     initial = np.array([math.log(e / exposures[reference]) for e in exposures])

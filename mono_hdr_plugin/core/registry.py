@@ -1,13 +1,15 @@
-"""Plugin registries: backbones, methods, dataset layouts and scene sources all work one way.
+"""Plugin registries: backbones, methods, dataset layouts, scene sources and benchmarks all work one way.
 
 Register in Python with a decorator (`@register_backbone("name")`, `@register_method(...)`,
-`@register_layout(...)`), or from an installed package through an entry-point group
-(`mono_hdr.backbones`, `mono_hdr.methods`, `mono_hdr.layouts`, `mono_hdr.scene_sources`).
-A plugin that fails to import is reported by name with its exception; the others keep working.
-The built-in nerf and gs backbones and the studio's scenes come through entry points, so
-`mono_hdr_plugin` imports neither.
+`@register_layout(...)`, `@register_benchmark(...)`), or from an installed package through an
+entry-point group (`mono_hdr.backbones`, `mono_hdr.methods`, `mono_hdr.layouts`,
+`mono_hdr.scene_sources`, `mono_hdr.benchmarks`). A plugin that fails to import is reported by
+name with its exception; the others keep working. The built-in nerf and gs backbones, the 3DGS
+rasteriser benchmark and the studio's scenes come through entry points, so `mono_hdr_plugin`
+imports neither.
 """
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 from importlib.metadata import entry_points
@@ -109,3 +111,19 @@ BACKBONES: PluginRegistry[type[Backbone]] = PluginRegistry("backbone", "mono_hdr
 register_backbone = BACKBONES.register
 """Class decorator: make a Backbone subclass available as `mono-hdr train <name>`."""
 get_backbone = BACKBONES.get
+
+
+def _validate_benchmark(name: str, config_class: Any) -> None:
+    if not (isinstance(config_class, type) and dataclasses.is_dataclass(config_class)
+            and callable(getattr(config_class, "run", None))):
+        raise RegistryError(f"benchmark {name!r}: {config_class!r} is not a config dataclass with a `run(self)` "
+                            "method")
+    if "out" not in {field.name for field in dataclasses.fields(config_class)}:
+        raise RegistryError(f"benchmark {name!r}: {config_class.__name__} has no `out` field (the folder its "
+                            "results go to)")
+
+
+BENCHMARKS: PluginRegistry[type] = PluginRegistry("benchmark", "mono_hdr.benchmarks", _validate_benchmark)
+register_benchmark = BENCHMARKS.register
+"""Class decorator on a config dataclass with an `out: Path` field and a `run(self)` method: make it
+available as `mono-hdr bench <name>` (its docstring is the help line, its fields the flags)."""

@@ -9,7 +9,9 @@ value out of range, naming the flag as the command line spells it (`--backbone.l
 Every numeric field is also checked to be finite, with a rule or without one: NaN or Inf is
 never a meaningful learning rate, weight, size or exposure, and a NaN learning rate would
 otherwise run to the end skipping every step. Rates, sizes and exposures must be positive;
-loss weights may be 0 (the term is off) but not negative.
+loss weights may be 0 (the term is off) but not negative. A text field with a fixed set of values
+lists them with `one_of("sequential", "ray")`. A check that involves two flags, which no rule
+can express, raises FlagError itself, naming both flags.
 """
 
 import dataclasses
@@ -53,6 +55,23 @@ class Rule:
                 f"{')' if self.high_open else ']'}")
 
 
+@dataclass(frozen=True)
+class Choice:
+    """The allowed values of a text field."""
+
+    choices: tuple[str, ...]
+
+    def accepts(self, value: str) -> bool:
+        return value in self.choices
+
+    def describe(self) -> str:
+        return f"one of {', '.join(self.choices)}"
+
+
+def one_of(*choices: str) -> Choice:
+    return Choice(choices)
+
+
 def _bound(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else f"{value:g}"
 
@@ -79,9 +98,9 @@ def numeric(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def rules_of(config_class: type) -> dict[str, Rule]:
+def rules_of(config_class: type) -> dict[str, Rule | Choice]:
     """The flag_rules table of a config dataclass and of its bases (subclass entries win)."""
-    rules: dict[str, Rule] = {}
+    rules: dict[str, Rule | Choice] = {}
     for cls in reversed(config_class.__mro__):
         rules.update(vars(cls).get("flag_rules", {}))
     return rules
@@ -92,7 +111,7 @@ def _omits_prefix(annotation: Any) -> bool:
         marker is tyro.conf.OmitArgPrefixes for marker in typing.get_args(annotation)[1:])
 
 
-def iter_flags(config: Any, prefix: str = "--") -> Iterator[tuple[str, Any, Rule | None]]:
+def iter_flags(config: Any, prefix: str = "--") -> Iterator[tuple[str, Any, Rule | Choice | None]]:
     """(flag, value, rule) of every leaf field of a config dataclass, nested configs flattened the
     way tyro names them (a field annotated OmitArgPrefixes adds no prefix)."""
     hints = typing.get_type_hints(type(config), include_extras=True)
@@ -107,9 +126,14 @@ def iter_flags(config: Any, prefix: str = "--") -> Iterator[tuple[str, Any, Rule
 
 
 def check_flags(config: Any) -> None:
-    """Raise FlagError naming the first numeric flag of `config` that is non-finite or out of its rule."""
+    """Raise FlagError naming the first flag of `config` that is non-finite, out of its rule or not one
+    of its choices."""
     for flag, value, rule in iter_flags(config):
         for item in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(rule, Choice):
+                if item is not None and not rule.accepts(item):
+                    raise FlagError(f"{flag} must be {rule.describe()}, got {item!r}")
+                continue
             if not numeric(item):
                 continue
             integer = isinstance(item, int)

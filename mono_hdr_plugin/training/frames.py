@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from mono_hdr_plugin.core.colour import srgb_decode
+from mono_hdr_plugin.core.exposure import reference_view
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.training.pipeline import Pipeline
 
@@ -26,7 +28,8 @@ CALIBRATION_VIEWS = 3
 class ExposureModel:
     """How a model's renders relate to exposure time.
 
-    reference_exposure: seconds shown at EV 0 (the training exposure; the middle one of several).
+    reference_exposure: seconds shown at EV 0 (the training exposure; of several, the reference
+        view's, `core.exposure.reference_view`).
     display_scale: k in `linear display value = k * hdr * t / reference_exposure`. HDR renders
         have no absolute scale (Mono-HDR's losses normalise by the maximum), so k is fitted: at
         the reference exposure the sRGB-decoded LDR render equals k * hdr over well-exposed pixels
@@ -53,24 +56,6 @@ class ExposureModel:
         return math.log2(exposure / self.reference_exposure)
 
 
-def srgb_encode(linear: Tensor) -> Tensor:
-    """The sRGB transfer curve of linear values, clipped to [0, 1] first."""
-    linear = linear.clamp(0.0, 1.0)
-    return torch.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
-
-
-def srgb_decode(encoded: Tensor) -> Tensor:
-    """Inverse of srgb_encode on [0, 1]."""
-    encoded = encoded.clamp(0.0, 1.0)
-    return torch.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
-
-
-def reference_exposure(exposures: list[float]) -> float:
-    """EV 0 of a model trained at these exposures: the middle one (t3 of t1, t3, t5)."""
-    ordered = sorted(exposures)
-    return ordered[(len(ordered) - 1) // 2]
-
-
 def fit_display_scale(ldr: Tensor, hdr: Tensor) -> float:
     """k with srgb_decode(ldr) ~ k * hdr: the median ratio over well-exposed, lit pixel values;
     a mid-grey mapping of the median radiance when no pixel qualifies."""
@@ -86,7 +71,7 @@ def fit_display_scale(ldr: Tensor, hdr: Tensor) -> float:
 def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
     """The ExposureModel of a model trained on `scene` (renders a few small training views)."""
     exposures = scene.train_exposures
-    reference = reference_exposure(exposures)
+    reference = scene.train[reference_view(scene.train)].exposure  # the training's own reference view
     views = {view.view_id: view for view in scene.train}
     chosen = list(views.values())[:: max(1, len(views) // CALIBRATION_VIEWS)][:CALIBRATION_VIEWS]
     ldr, hdr = [], []

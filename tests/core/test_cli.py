@@ -36,6 +36,13 @@ class TestHelp:
         for flag in ("--data", "--scene", "--method", "--max-steps", "--out", "--resume", "--seed"):
             assert flag in out
 
+    def test_bench_help_lists_every_registered_benchmark(self, capsys):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["bench", "--help"])
+        assert exit_info.value.code == 0
+        out = capsys.readouterr().out
+        assert "{curves,paper,raster}" in out
+
 
 class TestBackbonesCommand:
     def test_lists_example_with_source(self, capsys):

@@ -10,6 +10,7 @@ import torch
 
 from mono_hdr_plugin.core.exposure import (ExposureConfig, ViewExposures, build_view_exposures, choose_reference, decode,
                                       encode, photometric_log_exposures, srgb_response)
+from mono_hdr_plugin.training.frames import calibrate
 
 SRGB = torch.from_numpy(srgb_response()).float()
 
@@ -167,6 +168,10 @@ class TestBuild:
         assert choose_reference([4.0, 1.0, 2.0, 8.0, 0.5], [0.0] * 5) == 2
         assert choose_reference([1.0, 1.0, 1.0], [0.9, 0.1, 0.5]) == 2  # ties: the median brightness
 
+    def test_even_count_takes_the_upper_middle_view(self):
+        assert choose_reference([1.2, 0.15, 0.6, 0.3], [0.0] * 4) == 2  # 0.6 s, not 0.3 s
+        assert choose_reference([0.5, 0.5, 0.5, 2.0], [0.0] * 4) == 2  # over views: 0.5 s, not the distinct 0.5/2
+
 
 def auto_exposed(scene, exposures, known: bool):
     """The voxel capture re-photographed at a different exposure per training view (gamma 2.2)."""
@@ -206,6 +211,9 @@ class TestTraining:
         trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=True)
         exposures = trainer.pipeline.exposures
         assert not exposures.learned and float(exposures.reference_exposure) == pytest.approx(0.6)  # upper median of 4
+        # the viewer's EV 0 is the exposure training is anchored at (one rule, core.exposure.choose_reference)
+        scene = auto_exposed(voxel_scene, self.exposures, known=True)
+        assert calibrate(trainer.pipeline, scene).reference_exposure == pytest.approx(0.6)
         np.testing.assert_allclose(exposures.relative_exposures().numpy(), np.array(self.exposures) / 0.6, rtol=1e-6)
 
     @pytest.mark.parametrize("method", ["mono", "hdr-gs"])

@@ -1,7 +1,9 @@
-"""The plugin registries: one mechanism (decorator + entry points) for backbones, methods, layouts, scenes."""
+"""The plugin registries: one mechanism (decorator + entry points) for backbones, methods, layouts, scenes,
+benchmarks."""
 
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint
+from pathlib import Path
 
 import pytest
 
@@ -10,7 +12,7 @@ from mono_hdr_plugin.core.backbone import Backbone
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.data.sources import SCENE_SOURCES
 from mono_hdr_plugin.methods import METHODS
-from mono_hdr_plugin.core.registry import BACKBONES, PluginRegistry, RegistryError
+from mono_hdr_plugin.core.registry import BACKBONES, BENCHMARKS, PluginRegistry, RegistryError
 
 
 @dataclass
@@ -115,7 +117,53 @@ class TestBuiltinPlugins:
         assert list(LAYOUTS.available())[:3] == ["hdr-gs", "hdr-nerf-synthetic", "hdr-nerf-real"]
         assert "demo" in SCENE_SOURCES.get("studio").names()
 
-    @pytest.mark.parametrize("kind_registry,bad", [(METHODS, dict), (LAYOUTS, dict), (SCENE_SOURCES, object())])
+    def test_benchmarks_built_in_and_from_the_gs_entry_point(self):
+        import mono_hdr_plugin.apps.bench  # noqa: F401 - registers curves and paper
+
+        names = {ep.name for ep in registry.entry_points(group=BENCHMARKS.entry_point_group)}
+        assert "raster" in names
+        assert {"curves", "paper", "raster"} <= set(BENCHMARKS.available())
+        assert BENCHMARKS.get("raster").__module__ == "backbones.gs.benchmark"
+
+    @pytest.mark.parametrize("kind_registry,bad", [(METHODS, dict), (LAYOUTS, dict), (SCENE_SOURCES, object()),
+                                                   (BENCHMARKS, dict)])
     def test_each_kind_refuses_other_objects(self, kind_registry, bad):
         with pytest.raises(RegistryError, match=kind_registry.kind):
             kind_registry.register("bad")(bad)
+
+
+class TestRegisterBenchmark:
+    """A benchmark is its config dataclass: an `out` folder, flags as fields, `run(self)` does the work."""
+
+    @pytest.fixture
+    def benchmarks(self, monkeypatch):
+        monkeypatch.setattr(registry, "entry_points", fake_entry_points())
+        return PluginRegistry("benchmark", "test.benchmarks", registry._validate_benchmark)
+
+    def test_config_with_run_registers(self, benchmarks):
+        @dataclass
+        class TinyBench:
+            out: Path = Path("out")
+
+            def run(self):
+                return self.out
+
+        benchmarks.register("tiny")(TinyBench)
+        assert benchmarks.get("tiny") is TinyBench
+
+    def test_refuses_a_class_without_run_or_out(self, benchmarks):
+        @dataclass
+        class NoRun:
+            out: Path = Path("out")
+
+        @dataclass
+        class NoOut:
+            def run(self):
+                pass
+
+        with pytest.raises(RegistryError, match="run"):
+            benchmarks.register("x")(NoRun)
+        with pytest.raises(RegistryError, match="no `out` field"):
+            benchmarks.register("x")(NoOut)
+        with pytest.raises(RegistryError, match="not a config dataclass"):
+            benchmarks.register("x")(lambda: None)

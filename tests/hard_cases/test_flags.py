@@ -11,6 +11,9 @@ import typing
 import pytest
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+from backbones.gs.benchmark import BenchRasterConfig
+from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig
+from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig
 from mono_hdr_plugin.apps.cli import EvalConfig, main
 from mono_hdr_plugin.apps.export import ExportConfig
 from mono_hdr_plugin.core.registry import BACKBONES
@@ -27,7 +30,8 @@ def default_configs() -> dict[str, object]:
     configs = {name: train_config_for(BACKBONES.get(name).config_class)(backbone=BACKBONES.get(name).config_class())
                for name in BUILT_IN}
     configs.update(eval=EvalConfig(checkpoint="x.pt"), render=RenderConfig(checkpoint="x.pt"), synth=SynthConfig(),
-                   view=ViewConfig(checkpoint="x.pt"), export=ExportConfig(checkpoint="x.pt"))
+                   view=ViewConfig(checkpoint="x.pt"), export=ExportConfig(checkpoint="x.pt"),
+                   bench_curves=BenchCurvesConfig(), bench_paper=BenchPaperConfig(), bench_raster=BenchRasterConfig())
     return configs
 
 
@@ -91,7 +95,8 @@ def test_every_numeric_flag_has_a_rule_and_refuses_nan_and_out_of_range(name, pa
     for bad in bad_values:
         config = default_configs()[name]
         bad = int(bad) if integer else float(bad)
-        setattr(owner_of(config, path), path[-1], tuple([bad] * max(1, len(default))) if isinstance(default, tuple) else bad)
+        owner_object = owner_of(config, path)  # object.__setattr__: some configs are frozen (ExecutorConfig)
+        object.__setattr__(owner_object, path[-1], tuple([bad] * max(1, len(default))) if isinstance(default, tuple) else bad)
         with pytest.raises(FlagError, match=rf"^--(\S+\.)?{flag_name} must be .*, got {re.escape(str(bad))}"):
             check(name, config)
 
@@ -121,6 +126,9 @@ def test_no_rule_names_a_field_that_is_not_there():
     (["train", "voxel-grid", "--fixed-exposure", "0"], "--fixed-exposure must be a positive number, got 0.0"),
     (["train", "voxel-grid", "--max-seconds", "nan"], "--max-seconds must be a positive number, got nan"),
     (["render", "--checkpoint", "x.pt", "--exposures", "1", "nan"], "--exposures must be a positive number, got nan"),
+    (["bench", "curves", "--eval-points", "0"], "--eval-points must be an integer >= 1, got 0"),
+    (["bench", "paper", "--executor", "cluster"], "--executor must be one of sequential, ray, got 'cluster'"),
+    (["bench", "raster", "--repeats", "0"], "--repeats must be an integer >= 1, got 0"),
 ])
 def test_the_command_line_refuses_before_any_work_naming_the_flag(argv, message, tmp_path, monkeypatch):
     """As the issue found them: a NaN learning rate or loss weight, `--hidden 0`; spelled as typed."""

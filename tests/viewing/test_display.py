@@ -6,7 +6,9 @@ import pytest
 import torch
 
 from mono_hdr_plugin.apps.display import aces_filmic, colour_depth, exposed_hdr, needs_render_at, to_display
-from mono_hdr_plugin.training.frames import ExposureModel, fit_display_scale, reference_exposure, srgb_decode, srgb_encode
+from mono_hdr_plugin.core.colour import srgb_decode, srgb_encode
+from mono_hdr_plugin.core.exposure import choose_reference
+from mono_hdr_plugin.training.frames import ExposureModel, fit_display_scale
 from mono_hdr_plugin.training.pipeline import Frame
 from mono_hdr_plugin.core.metrics import normalise_hdr
 
@@ -34,8 +36,8 @@ class TestCurves:
         torch.testing.assert_close(aces_filmic(torch.tensor([0.0, 0.18, 1.0, 1000.0])), expected, atol=1e-6, rtol=0)
 
     def test_reference_exposure_is_the_middle_training_exposure(self):
-        assert reference_exposure([32.0, 0.125, 2.0]) == 2.0
-        assert reference_exposure([0.5]) == 0.5
+        assert choose_reference([32.0, 0.125, 2.0], [0.0] * 3) == 2
+        assert choose_reference([0.5], [0.0]) == 0
 
 
 class TestExposure:

@@ -8,7 +8,7 @@ import torch
 from conftest import train_model
 from mono_hdr_plugin.apps.camera_paths import ViewerCamera, viewer_from_camera
 from mono_hdr_plugin.apps.display import to_uint8
-from mono_hdr_plugin.training.frames import srgb_encode
+from mono_hdr_plugin.core.colour import srgb_encode
 from mono_hdr_plugin.core.metrics import hdr_metrics
 from mono_hdr_plugin.training.pipeline import RenderCancelled
 from mono_hdr_plugin.apps.viewer.gui import Viewer

@@ -2,15 +2,18 @@
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import tyro
 
 from mono_hdr_plugin.apps.bench.report import fmt, label, pyplot, report_on_exit
 from mono_hdr_plugin.apps.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, execute, paper_backbones,
                                         parse_presets)
+from mono_hdr_plugin.core.registry import register_benchmark
+from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
 
 
+@register_benchmark("curves")
 @dataclass
 class BenchCurvesConfig:
     """Quality versus training time for each backbone x method x scene (one seed, exposure t3)."""
@@ -37,6 +40,12 @@ class BenchCurvesConfig:
     """Test views per evaluation (default 4 quick, all full)."""
     executor: Annotated[ExecutorConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExecutorConfig)
     """Where the runs execute."""
+
+    flag_rules: ClassVar = {"exposure_index": between(0, 2), "budget_seconds": POSITIVE, "eval_points": at_least(1),
+                            "max_eval_views": at_least(1)}
+
+    def run(self) -> dict[str, Any]:
+        return bench_curves(self)
 
 
 def curve_specs(config: BenchCurvesConfig) -> list[RunSpec]:

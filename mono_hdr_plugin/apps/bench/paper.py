@@ -15,14 +15,15 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import tyro
 
 from mono_hdr_plugin.apps.bench.report import fmt, pyplot, report_on_exit
 from mono_hdr_plugin.apps.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, console, execute,
                                         paper_backbones, parse_presets)
-from mono_hdr_plugin.core.registry import get_backbone
+from mono_hdr_plugin.core.registry import get_backbone, register_benchmark
+from mono_hdr_plugin.core.validation import POSITIVE, SEED, FlagError, at_least, between
 
 # The paper's figures (docs/method.md), HDR PSNR in dB, by the paper's backbone rows; a registered
 # backbone reproduces a row through its `paper_backbone`. The ablations are the paper's 3DGS ones.
@@ -47,6 +48,7 @@ TableName = Literal["table1", "converters", "losses", "ratios", "recipes"]
 METRICS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "ldr_psnr", "ldr_ssim")
 
 
+@register_benchmark("paper")
 @dataclass
 class BenchPaperConfig:
     """The paper's tables re-run on studio scenes (single exposure), over seeds, next to its figures.
@@ -86,6 +88,13 @@ class BenchPaperConfig:
     """BACKBONE=PRESET pairs; other backbones run their default (CPU) preset."""
     executor: Annotated[ExecutorConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExecutorConfig)
     """Where the runs execute."""
+
+    flag_rules: ClassVar = {"exposure_indices": between(0, 2), "seeds": SEED, "ablation_seeds": SEED,
+                            "budget_seconds": POSITIVE, "steps": at_least(1), "eval_points": at_least(1),
+                            "max_eval_views": at_least(1)}
+
+    def run(self) -> dict[str, Any]:
+        return bench_paper(self)
 
     def resolved(self) -> "BenchPaperConfig":
         """--quick applied."""
@@ -166,7 +175,7 @@ def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
     trials = tuning_trials(config) if "recipes" in config.tables else {}
     report_scenes = tuple(s for s in config.scenes if s != config.tune_scene)
     if trials and not report_scenes:
-        raise ValueError(f"the recipe table reports on scenes other than --tune-scene {config.tune_scene!r}: "
+        raise FlagError(f"the recipe table reports on scenes other than --tune-scene {config.tune_scene!r}: "
                          "add another scene to --scenes")
     specs = list(dict.fromkeys(spec for v in variants for spec in v.runs(config.exposure_indices)))
     trial_specs = [spec for specs_of in trials.values() for spec in specs_of]

@@ -19,7 +19,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import torch
 from rich.console import Console
@@ -30,6 +30,7 @@ from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.methods import MethodConfig
 from mono_hdr_plugin.core.registry import BACKBONES, get_backbone
+from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, FlagError, at_least, check_flags, one_of
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.hooks import TrainingHook
 from mono_hdr_plugin.training.trainer import Trainer
@@ -73,11 +74,13 @@ class RunBudget:
     """Evaluations spread evenly along the run (in seconds when timed, else in steps); the last is the result."""
     max_eval_views: int | None = None
 
+    flag_rules: ClassVar = {"seconds": POSITIVE, "steps": at_least(1), "eval_points": at_least(1),
+                            "max_eval_views": at_least(1)}
+
     def __post_init__(self):
         if self.seconds is None and self.steps is None:
-            raise ValueError("a benchmark run needs --budget-seconds or --steps")
-        if self.eval_points < 1:
-            raise ValueError(f"--eval-points must be >= 1, got {self.eval_points}")
+            raise FlagError("a benchmark run needs --budget-seconds or --steps")
+        check_flags(self)  # a budget built by a script, not a command's checked config
 
 
 def paper_backbones() -> dict[str, str]:
@@ -95,7 +98,7 @@ def parse_presets(pairs: tuple[str, ...]) -> dict[str, str]:
     for pair in pairs:
         backbone, _, preset = pair.partition("=")
         if preset not in get_backbone(backbone).presets():
-            raise ValueError(f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
+            raise FlagError(f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
                              f"{', '.join(get_backbone(backbone).presets())}")
         presets[backbone] = preset
     return presets
@@ -283,17 +286,17 @@ class ExecutorConfig:
     retries: int = 1
     """A row that raises is tried again this many times, then recorded as failed with its error."""
 
+    flag_rules: ClassVar = {"executor": one_of("sequential", "ray"), "cpus_per_run": at_least(1),
+                            "retries": NON_NEGATIVE}
+
 
 def execute(specs: list[RunSpec], budget: RunBudget, store: RowStore, runs_dir: Path, executor: ExecutorConfig,
             on_row: Callable[[dict], None] = lambda row: None) -> None:
     """Run every spec not finished in `store`, recording each row (or its failure) as it ends."""
+    check_flags(executor)  # an executor built by a script, not a command's checked config
     pending = [spec for spec in specs if not store.done(spec)]
-    if executor.executor == "sequential":
-        _run_sequential(pending, budget, store, runs_dir, executor, on_row)
-    elif executor.executor == "ray":
-        _run_ray(pending, budget, store, runs_dir, executor, on_row)
-    else:
-        raise ValueError(f"--executor must be sequential or ray, got {executor.executor!r}")
+    run = _run_sequential if executor.executor == "sequential" else _run_ray
+    run(pending, budget, store, runs_dir, executor, on_row)
 
 
 def _run_sequential(specs, budget, store, runs_dir, executor, on_row) -> None:

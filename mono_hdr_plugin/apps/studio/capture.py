@@ -15,12 +15,12 @@ from typing import Callable
 
 import numpy as np
 
+from mono_hdr_plugin.core.colour import RESPONSE_CURVES, decode_curve, encode_curve
+
 PHYSICAL_ORDER = ("exposure", "gain", "offset", "noise", "vignette", "white_balance", "crf",
                   "clip", "quantize")
 QUANTIZE_BITS = (8, 10, 12, 16)
-CRF_NAMES = ("srgb", "bt709", "gamma", "film")
-# colour-science names of the standard encoding curves offered as camera response curves.
-COLOUR_CURVES = {"srgb": "sRGB", "bt709": "ITU-R BT.709"}
+CRF_NAMES = (*RESPONSE_CURVES, "gamma", "film")
 
 
 @dataclass(frozen=True)
@@ -140,10 +140,8 @@ def response_curve(x: np.ndarray, settings: CaptureSettings) -> np.ndarray:
     than no light.
     """
     x = np.clip(x, 0, None)
-    if settings.crf in COLOUR_CURVES:
-        import colour
-
-        return colour.cctf_encoding(x, function=COLOUR_CURVES[settings.crf]).astype(np.float32)
+    if settings.crf in RESPONSE_CURVES:
+        return encode_curve(x, settings.crf).astype(np.float32)
     if settings.crf == "gamma":
         return (x ** (1.0 / settings.gamma)).astype(np.float32)
     # Film: a sigmoid in log exposure, (1 + k) x^n / (x^n + k), scaled so that film(1) = 1.
@@ -155,10 +153,8 @@ def response_curve(x: np.ndarray, settings: CaptureSettings) -> np.ndarray:
 def inverse_response_curve(y: np.ndarray, settings: CaptureSettings) -> np.ndarray:
     """Inverse of `response_curve` on its range."""
     y = np.clip(y, 0, None)
-    if settings.crf in COLOUR_CURVES:
-        import colour
-
-        return colour.cctf_decoding(y, function=COLOUR_CURVES[settings.crf]).astype(np.float32)
+    if settings.crf in RESPONSE_CURVES:
+        return decode_curve(y, settings.crf).astype(np.float32)
     if settings.crf == "gamma":
         return (y**settings.gamma).astype(np.float32)
     n, k = settings.film_contrast, settings.film_shoulder

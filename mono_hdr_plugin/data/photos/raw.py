@@ -11,18 +11,17 @@ image through a chosen response curve (`encode`), clipped at white.
 
 from datetime import datetime
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
+from mono_hdr_plugin.core.colour import ResponseCurve, decode_curve, encode_curve
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.photos.exif import PhotoExif
 
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf", ".orf", ".rw2",
                 ".pef", ".srw", ".3fr", ".iiq", ".rwl", ".x3f")
-RawResponse = Literal["srgb", "bt709"]
-COLOUR_FUNCTIONS = {"srgb": "sRGB", "bt709": "ITU-R BT.709"}
-"""colour-science names of the response curves a RAW photo's LDR view can be encoded with."""
+RawResponse = ResponseCurve
+"""The standard response curves a RAW photo's LDR view can be encoded with."""
 
 
 def is_raw(path: Path) -> bool:
@@ -58,14 +57,9 @@ def raw_metadata(other) -> PhotoExif:
 
 def encode(linear: np.ndarray, response: RawResponse) -> np.ndarray:
     """Linear pixels through a standard response curve, clipped to [0, 1]: the LDR photo of a RAW file."""
-    import colour
-
-    return np.clip(colour.cctf_encoding(np.clip(linear, 0.0, 1.0), function=COLOUR_FUNCTIONS[response]),
-                   0.0, 1.0).astype(np.float32)
+    return np.clip(encode_curve(np.clip(linear, 0.0, 1.0), response), 0.0, 1.0).astype(np.float32)
 
 
 def decode(encoded: np.ndarray, response: RawResponse) -> np.ndarray:
     """Inverse of `encode` on [0, 1]."""
-    import colour
-
-    return colour.cctf_decoding(np.clip(encoded, 0.0, 1.0), function=COLOUR_FUNCTIONS[response]).astype(np.float32)
+    return decode_curve(np.clip(encoded, 0.0, 1.0), response).astype(np.float32)
