@@ -88,7 +88,7 @@ def extract_frames(video: Path, folder: Path, fps: float, oversample: int = 3, m
         raise DatasetError(f"{video}: the video has no frames that ffmpeg can decode; record or export it again")
     threshold = min_sharpness * float(np.median([frame.sharpness for frame in best]))
     for frame in best:
-        if frame.sharpness < threshold and frame.path is not None:  # every kept-best frame was written
+        if frame.sharpness < threshold:
             frame.path.unlink()
             frame.path = None
     kept = [frame for frame in best if frame.path is not None]
