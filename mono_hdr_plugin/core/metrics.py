@@ -121,7 +121,7 @@ def load_lpips():
     Raises LpipsUnavailable with the reason otherwise; nothing is downloaded.
     """
     try:
-        import lpips  # noqa: PLC0415 - optional dependency
+        import lpips  # optional dependency
     except ImportError as error:
         raise LpipsUnavailable("LPIPS skipped: the 'lpips' package is not installed "
                                "(pip install lpips, with its AlexNet weights cached)") from error

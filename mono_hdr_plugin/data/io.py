@@ -223,7 +223,7 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False) ->
 
 def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:
     """A PLY file whose one "vertex" element holds the structured array `vertices` (atomic)."""
-    from plyfile import PlyData, PlyElement  # noqa: PLC0415 - only exports need it
+    from plyfile import PlyData, PlyElement  # only exports need it
 
     with atomic_path(path) as temporary:
         PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
@@ -232,7 +232,7 @@ def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:
 
 def read_ply_vertices(path: str | os.PathLike, kind: str):
     """The "vertex" element of a PLY file; errors name the file and the `kind` of PLY expected."""
-    from plyfile import PlyData  # noqa: PLC0415
+    from plyfile import PlyData
 
     path = Path(path)
     if not path.is_file():
