@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 17179869184
 
-.PHONY: install demo test test-slow mutants planted-bugs clean
+.PHONY: install demo test test-slow lint mutants planted-bugs clean
 
 $(BIN)/mono-hdr: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,12 @@ test-slow: install
 	# the slow suite also runs the benchmarks on Ray (the optional `distributed` extra)
 	$(BIN)/pip install --quiet -e '.[test,distributed]'
 	$(BIN)/python -m pytest -q -m slow
+
+# ruff (lint + format check) and mypy, configured in pyproject.toml; CI runs it after the tests
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 # Mutation testing of metrics, methods, converters, losses, the pipeline, the trainer's step,
 # evaluation and the rasteriser's Python side (hours on 2 cores; docs/testing.md). Not in CI.

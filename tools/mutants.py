@@ -17,6 +17,7 @@ docs/testing.md has the last full run, and the survivors judged equivalent with 
 
 import argparse
 import ast
+import contextlib
 import copy
 import importlib.abc
 import importlib.util
@@ -281,20 +282,18 @@ def preload() -> None:
     """Import everything the project imports (torch, numpy, scikit-image, ...), build the C++
     rasteriser, then forget the project's own modules so each mutant imports them afresh."""
     sys.path[:0] = [str(ROOT), str(ROOT / "examples")]
-    import pytest  # noqa: F401, PLC0415
-    import mono_hdr_plugin.apps.cli  # noqa: F401, PLC0415
-    import mono_hdr_plugin.training.evaluation  # noqa: F401, PLC0415
-    import mono_hdr_plugin.training.trainer  # noqa: F401, PLC0415
-    from backbones.gs._extension import load_extension  # noqa: PLC0415
-    from mono_hdr_plugin.core.registry import BACKBONES  # noqa: PLC0415
+    import pytest  # noqa: F401 - imported for what it imports
+    import mono_hdr_plugin.apps.cli
+    import mono_hdr_plugin.training.evaluation
+    import mono_hdr_plugin.training.trainer  # noqa: F401 - imported for what it imports
+    from backbones.gs._extension import load_extension
+    from mono_hdr_plugin.core.registry import BACKBONES
 
     BACKBONES.available()  # imports every backbone plugin and what it needs
     load_extension()
     for optional in ("skimage.metrics", "hypothesis", "mono_hdr_plugin.apps.studio.source"):
-        try:
+        with contextlib.suppress(ImportError):  # an optional extra that is not installed
             __import__(optional)
-        except ImportError:
-            pass
     _forget_project_modules()
 
 
@@ -312,7 +311,7 @@ def run_tests(target: Target, code, timeout: float, log: Path) -> tuple[str, flo
             with open(log, "w") as output:
                 os.dup2(output.fileno(), 1)
                 os.dup2(output.fileno(), 2)
-                import pytest  # noqa: PLC0415
+                import pytest
 
                 status = pytest.main(["-x", "-q", "-p", "no:cacheprovider", "-m", "not slow", *target.tests])
             os.write(write_end, str(int(status)).encode())

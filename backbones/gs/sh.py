@@ -69,7 +69,7 @@ def view_directions(means: Tensor, camera_center: Tensor) -> Tensor:
 class _ShKernel(torch.autograd.Function):
     @staticmethod
     def forward(ctx, sh_dc, sh_rest, means, index, center, degree):
-        from backbones.gs._extension import load_extension  # noqa: PLC0415 - the twin needs no build
+        from backbones.gs._extension import load_extension  # the twin needs no build
 
         ctx.save_for_backward(sh_dc, sh_rest, means, index, center)
         ctx.degree = degree
@@ -77,7 +77,7 @@ class _ShKernel(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, v_colors):
-        from backbones.gs._extension import load_extension  # noqa: PLC0415
+        from backbones.gs._extension import load_extension
 
         sh_dc, sh_rest, means, index, center = ctx.saved_tensors
         v_dc, v_rest, v_means = load_extension().sh_backward(sh_dc, sh_rest, means, index, center, ctx.degree,

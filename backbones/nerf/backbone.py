@@ -32,6 +32,10 @@ class NerfBackbone(Backbone):
     loss_kind = "mse"
     paper_backbone = "NeRF"
     pixel_batch = 1024
+    bounds_min: Tensor  # buffers, for the type checker (nn.Module.__getattr__ returns Tensor | Module)
+    bounds_max: Tensor
+    background: Tensor
+    rays_per_step: Tensor  # the grid field's only
 
     def __init__(self, config: NerfConfig, scene: SceneInfo):
         super().__init__(config, scene)

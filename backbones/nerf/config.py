@@ -79,16 +79,16 @@ class GridFieldConfig:
     color_activation: ColorActivation = "sigmoid"
     """A sample's LDR colour from the colour MLP: sigmoid stops at 1, as the official MLP does;
     softplus is unbounded above, as 3DGS's SH colours are, so a sample seen through a clipped pixel
-    can pass 1 (docs/nerf_profile.md, "Clipped lights": it lifts HDR on scenes with clipped lights
-    but costs coloured-light 5 dB of LDR; l2h_input = raw reaches the HDR gain without that)."""
+    can pass 1. What each costs and gains: docs/nerf_profile.md, "Clipped lights" (l2h_input = raw
+    reaches the HDR gain without touching the LDR branch)."""
     # checkpoints written before this field existed trained L2H-CC on the colour
     l2h_input: L2hInput = dataclasses.field(default="raw", metadata={ABSENT_IN_SAVED_CONFIG: "activated"})
     """What L2H-CC reads per sample: raw, the colour before color_activation (the sigmoid's
     logit), or activated, the LDR colour itself (the paper's NeRF). The two carry the same
     information, but where the LDR loss holds samples near 1 (a clipped light, a clipped wall)
     the sigmoid's gradient vanishes, so the HDR loss cannot lift a light above the wall through
-    it; through the logit it can (docs/nerf_profile.md, "L2H-CC on the logit": +0.9 to +11 dB
-    own-max HDR PSNR in 240 s on four of five scenes, level on the fifth)."""
+    it; through the logit it can. Measured on the built-in scenes: docs/nerf_profile.md, "L2H-CC on
+    the logit"."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
     density_scale: float = 32.0

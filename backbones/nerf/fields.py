@@ -86,6 +86,9 @@ class GridRadianceField(nn.Module):
     """Multi-resolution dense feature grids (one table, C++ trilinear kernel), a tiny density MLP
     and a tiny colour MLP."""
 
+    resolutions: Tensor  # buffers, for the type checker (nn.Module.__getattr__ returns Tensor | Module)
+    offsets: Tensor
+
     def __init__(self, config: GridFieldConfig):
         super().__init__()
         self.config = config
@@ -138,6 +141,11 @@ class OccupancyGrid(nn.Module):
     first refresh every seen cell is occupied, so an untrained field renders with plain
     stratified samples.
     """
+
+    densities: Tensor  # buffers, for the type checker (nn.Module.__getattr__ returns Tensor | Module)
+    seen: Tensor
+    occupied: Tensor
+    updates: Tensor
 
     def __init__(self, resolution: int):
         super().__init__()

@@ -97,8 +97,8 @@ class Backbone(torch.nn.Module):
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
     paper_backbone: ClassVar[str | None] = None
-    pixel_batch: ClassVar[int | None] = None
-    render_chunk: ClassVar[int | None] = None
+    pixel_batch: int | None = None  # a backbone may set these per instance (NeRF: from its config)
+    render_chunk: int | None = None
     converter_lr: float = OFFICIAL_CONVERTER_LR
 
     def __init__(self, config: Any, scene: SceneInfo):

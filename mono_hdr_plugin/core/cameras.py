@@ -118,7 +118,10 @@ def focal_from_fov(fov_x: float, width: int) -> float:
     return 0.5 * width / torch.tan(torch.tensor(0.5 * fov_x)).item()
 
 
-def look_at(eye: Tensor, target: Tensor, up: Tensor = torch.tensor([0.0, 0.0, 1.0])) -> Tensor:
+WORLD_UP = torch.tensor([0.0, 0.0, 1.0])
+
+
+def look_at(eye: Tensor, target: Tensor, up: Tensor = WORLD_UP) -> Tensor:
     """OpenCV camera-to-world [4, 4] of a camera at `eye` looking at `target` (world z up)."""
     forward = target - eye
     forward = forward / forward.norm()

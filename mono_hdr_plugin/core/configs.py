@@ -34,7 +34,7 @@ def config_from_dict(cls: type, values: dict) -> Any:
 def _coerce(annotation: Any, value: Any) -> Any:
     if value is None:
         return None
-    if dataclasses.is_dataclass(annotation):
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
         return config_from_dict(annotation, value)
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
@@ -42,7 +42,8 @@ def _coerce(annotation: Any, value: Any) -> Any:
         if isinstance(value, dict):  # a union of config dataclasses: the one that has every field the values name
             for option in options:
                 config = typing.get_args(option)[0] if typing.get_origin(option) is typing.Annotated else option
-                if dataclasses.is_dataclass(config) and set(value) <= {f.name for f in dataclasses.fields(config)}:
+                if (isinstance(config, type) and dataclasses.is_dataclass(config)
+                        and set(value) <= {f.name for f in dataclasses.fields(config)}):
                     return config_from_dict(config, value)
         return _coerce(options[0], value)
     if origin is typing.Annotated:

@@ -27,7 +27,7 @@ def vector_flags() -> tuple[str, list[str]]:
 def load_cpp_extension(name: str, source: Path) -> ModuleType:
     """The compiled module of one C++ source (compiled on the first call of a process when the
     cached build is missing or stale; a minute or so)."""
-    from torch.utils.cpp_extension import load  # noqa: PLC0415 - pulls in the compiler tool chain
+    from torch.utils.cpp_extension import load  # pulls in the compiler tool chain
 
     if "TORCH_EXTENSIONS_DIR" in os.environ:
         build_root = Path(os.environ["TORCH_EXTENSIONS_DIR"])

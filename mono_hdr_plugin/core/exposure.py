@@ -48,9 +48,8 @@ class ExposureConfig:
     exposure_lr: float = 0.001
     """Adam learning rate of the learned log exposures. Adam moves each one by about this much every
     step whatever the size of its gradient, so once an exposure is right it random-walks by about
-    lr x sqrt(steps): on the studio capture (16 views, 600 steps) 0.01 took exposures measured to
-    within 1.5 % out to 15 %, 0.003 to 6 %, 0.001 to 2 %. 0.001 still corrects a start that is
-    off by up to e^(0.001 x steps) (1.8x in 600 steps)."""
+    lr x sqrt(steps), and a start that is off by up to e^(lr x steps) is still corrected. How far
+    each rate let good exposures drift: docs/own_photos.md, "Exposure per view in training"."""
 
     flag_rules: ClassVar = {"exposure_lr": POSITIVE}
 
@@ -199,7 +198,7 @@ def photometric_log_exposures(views, points: Tensor, response: np.ndarray, refer
     Every point is projected into every view; a point counts only when its pixel in every view
     that sees it is neither near clipping nor near the noise floor (keeping a point's darker
     views where its brighter ones clip would favour pixels whose noise happened to be low, and
-    compress the ratios by ~15 % on the studio's captures). Log brightness = view offset + point
+    compress the ratios; docs/own_photos.md, "Exposure per view in training"). Log brightness = view offset + point
     radiance is solved by a two-way median (Tukey's median polish), which occlusions and
     highlights do not move. A view that sees no usable point keeps 0.
     """

@@ -102,7 +102,8 @@ def tone_mapped_pair(pred_hdr: Tensor, gt_hdr: Tensor, normalisation: HdrNormali
 def hdr_metrics(pred_hdr: Tensor, gt_hdr: Tensor) -> dict[str, float]:
     """mu-law PSNR/SSIM under both official normalisations, named."""
     results = {}
-    for normalisation, suffix in (("own_max", ""), ("gt_max", "_gt_max")):
+    normalisations: tuple[tuple[HdrNormalisation, str], ...] = (("own_max", ""), ("gt_max", "_gt_max"))
+    for normalisation, suffix in normalisations:
         pred, gt = tone_mapped_pair(pred_hdr, gt_hdr, normalisation)
         results[f"hdr_psnr{suffix}"] = psnr(pred, gt)
         results[f"hdr_ssim{suffix}"] = ssim(pred.double(), gt.double()).item()
@@ -120,7 +121,7 @@ def load_lpips():
     Raises LpipsUnavailable with the reason otherwise; nothing is downloaded.
     """
     try:
-        import lpips  # noqa: PLC0415 - optional dependency
+        import lpips  # optional dependency
     except ImportError as error:
         raise LpipsUnavailable("LPIPS skipped: the 'lpips' package is not installed "
                                "(pip install lpips, with its AlexNet weights cached)") from error
@@ -132,6 +133,8 @@ def load_lpips():
 
 def lpips_distance(model, pred: Tensor, target: Tensor) -> float:
     """LPIPS between two images [H, W, 3] in [0, 1] (the network takes [-1, 1])."""
-    to_network = lambda image: image.permute(2, 0, 1).unsqueeze(0).float() * 2 - 1  # noqa: E731
+    def to_network(image: Tensor) -> Tensor:
+        return image.permute(2, 0, 1).unsqueeze(0).float() * 2 - 1
+
     with torch.no_grad():
         return model(to_network(pred), to_network(target)).item()

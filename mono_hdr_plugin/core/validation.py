@@ -43,9 +43,9 @@ class Rule:
 
     def describe(self, integer: bool) -> str:
         kind = "an integer" if integer else "a number"
-        if self.low is None and self.high is None:
-            return f"a finite {kind.split()[-1]}"
         if self.high is None:
+            if self.low is None:
+                return f"a finite {kind.split()[-1]}"
             if self.low == 0 and self.low_open:
                 return "a positive integer" if integer else "a positive number"
             return f"{kind} {'>' if self.low_open else '>='} {_bound(self.low)}"

@@ -18,7 +18,7 @@ def missing(path, fix: str) -> MissingFileError:
 
 
 # What to do about a file-system error, by errno: the one table every one-line message uses.
-_FIXES = {
+_FIXES: dict[int | None, str] = {  # OSError.errno is None when the OS gave no code
     errno.ENOENT: "check the path",
     errno.ENOTDIR: "a part of the path is a file, not a folder: fix the path",
     errno.EISDIR: "it is a folder where a file is expected: pass the file",

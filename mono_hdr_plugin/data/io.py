@@ -30,7 +30,8 @@ def atomic_path(path: str | os.PathLike, durable: bool = False):
     """Yield a temporary path beside `path` (same suffix); rename it onto `path` on success.
 
     On failure `path` keeps its previous content and the temporary file is removed; a file-system
-    error names `path`, also when a library reported it as text (OpenEXR's "No space left on device"). `durable`: flush the file and the folder to disk, so the rename survives a power cut.
+    error names `path`, also when a library reported it as text (OpenEXR's "No space left on device").
+    `durable`: flush the file and the folder to disk, so the rename survives a power cut.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -124,10 +125,9 @@ def _read_with_pillow(path: Path) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as image:
-            image.load()  # decode now: a truncated file fails here, not later
-            if image.mode in ("P", "PA"):
-                image = image.convert("RGBA")
+        with Image.open(path) as opened:
+            opened.load()  # decode now: a truncated file fails here, not later
+            image = opened.convert("RGBA") if opened.mode in ("P", "PA") else opened
             pixels = np.asarray(image)
     except (OSError, UnidentifiedImageError, SyntaxError) as error:
         raise _corrupt(path, error) from error
@@ -223,7 +223,7 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False) ->
 
 def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:
     """A PLY file whose one "vertex" element holds the structured array `vertices` (atomic)."""
-    from plyfile import PlyData, PlyElement  # noqa: PLC0415 - only exports need it
+    from plyfile import PlyData, PlyElement  # only exports need it
 
     with atomic_path(path) as temporary:
         PlyData([PlyElement.describe(vertices, "vertex")]).write(str(temporary))
@@ -232,7 +232,7 @@ def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:
 
 def read_ply_vertices(path: str | os.PathLike, kind: str):
     """The "vertex" element of a PLY file; errors name the file and the `kind` of PLY expected."""
-    from plyfile import PlyData  # noqa: PLC0415
+    from plyfile import PlyData
 
     path = Path(path)
     if not path.is_file():

@@ -198,7 +198,7 @@ class TestEvaluateKnownAnswer:
     def test_lpips_of_both_images(self, monkeypatch):
         """With an LPIPS network (here one that measures mean absolute difference, as the real
         weights are not on this machine) each view gets LDR and HDR distances, averaged like the rest."""
-        network = lambda a, b: (a - b).abs().mean()  # noqa: E731
+        network = lambda a, b: (a - b).abs().mean()  # noqa: E731 - a one-line stand-in for the network
         monkeypatch.setattr("mono_hdr_plugin.training.evaluation.load_lpips", lambda: network)
         scene = known_scene()
         metrics = evaluate(known_pipeline(scene, "mono"), scene)

@@ -113,7 +113,7 @@ class TestViewExposures:
         features = pipeline.backbone.render_ldr_features(camera_at(0.5))
         output = pipeline._lift(features, 0.5, 1, training=True)
         plain = pipeline.method.render(features, 0.5)
-        brighter = lambda image: pipeline.exposures.brighten(image, torch.tensor(math.log(2.0)))  # noqa: E731
+        brighter = lambda image: pipeline.exposures.brighten(image, torch.tensor(math.log(2.0)))  # noqa: E731 - the expectation, named
         torch.testing.assert_close(output.ldr, brighter(plain.ldr))
         torch.testing.assert_close(output.ldr_from_hdr, brighter(plain.ldr_from_hdr))
         assert not torch.allclose(output.ldr, plain.ldr, atol=1e-3)

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-import register_backbone  # examples/, put on sys.path by conftest
+import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.methods import method_names
 from mono_hdr_plugin.training.evaluation import evaluate

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-import register_layout  # registers "scene-json"
+import register_layout  # noqa: F401 - registers "scene-json" (examples/, on sys.path via conftest)
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError

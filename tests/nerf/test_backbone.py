@@ -332,7 +332,7 @@ class TestPackedSamples:
         (first_pass, with_grad, unstopped) = evaluated
         assert not first_pass[0] and with_grad[0] and unstopped[0]
         assert with_grad[1] < first_pass[1] == unstopped[1]  # samples behind the ball got no gradient pass
-        ones = lambda f: f.composite(torch.ones_like(f.colors))  # noqa: E731
+        ones = lambda f: f.composite(torch.ones_like(f.colors))  # noqa: E731 - the opacity, as a one-liner
         torch.testing.assert_close(ones(stopped), ones(full), atol=1e-4 + 16 * 1e-4, rtol=0)
 
     def test_weight_threshold_drops_only_light_samples(self, scene):

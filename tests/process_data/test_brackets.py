@@ -218,7 +218,7 @@ class TestResponse:
     def test_recovered_response_merges_almost_as_well_as_the_true_one(self):
         exposures = [2.0**k for k in (0, 3, 6, 9, 12)]
         scene = linear_scene()
-        srgb = lambda x: colour.cctf_encoding(x, function="sRGB")  # noqa: E731
+        srgb = lambda x: colour.cctf_encoding(x, function="sRGB")  # noqa: E731 - the camera's response, inline
         photos = [photograph(scene, t, srgb) for t in exposures]
         response = recover_response([([response_sample(p) for p in photos], exposures)])
         assert mulaw_psnr(merge_bracket(photos, exposures, response, ["a"] * 5), scene) > 35

@@ -8,11 +8,14 @@ from pathlib import Path
 
 from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError, missing
-# Imported in detection order: each module registers its layout.
-from mono_hdr_plugin.data.layouts import hdr_gs  # noqa: F401, I001
-from mono_hdr_plugin.data.layouts import hdr_nerf_synthetic  # noqa: F401
-from mono_hdr_plugin.data.layouts import hdr_nerf_real  # noqa: F401
 from mono_hdr_plugin.data.layouts.base import LAYOUTS, DatasetLayout, register_layout
+
+# Imported in detection order, which sorting would change: each module registers its layout.
+# isort: off
+from mono_hdr_plugin.data.layouts import hdr_gs  # noqa: F401 - registers the layout
+from mono_hdr_plugin.data.layouts import hdr_nerf_synthetic  # noqa: F401 - registers the layout
+from mono_hdr_plugin.data.layouts import hdr_nerf_real  # noqa: F401 - registers the layout
+# isort: on
 
 __all__ = ["LAYOUTS", "DatasetLayout", "detect_layout", "read_layout", "register_layout", "writable_layouts",
            "write_layout"]

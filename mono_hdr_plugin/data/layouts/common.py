@@ -5,6 +5,7 @@ Every value a reader takes from a dataset file goes through one of the `json_*` 
 usable as a file name is a DatasetError naming the file and the key, never a traceback.
 """
 
+import contextlib
 import json
 import math
 import os
@@ -97,10 +98,8 @@ def check_exposure(value, where: str) -> float:
     """A positive, finite exposure time in seconds, or an error naming where it came from."""
     exposure = math.nan
     if not isinstance(value, bool):
-        try:
+        with contextlib.suppress(TypeError, ValueError, OverflowError):  # not a number: named below
             exposure = float(value)
-        except (TypeError, ValueError, OverflowError):
-            pass
     if not (math.isfinite(exposure) and exposure > 0):
         raise DatasetError(f"{where}: exposure time {shown(value)} is not a positive number of seconds; "
                            "fix the exposure value")
@@ -141,7 +140,7 @@ def image_size(path: Path) -> tuple[int, int]:
 
 def check_one_size(sizes: dict[Path, tuple[int, int]], folder: Path) -> tuple[int, int]:
     """The one (width, height) all images share, or an error naming two that differ."""
-    distinct = {}
+    distinct: dict[tuple[int, int], Path] = {}
     for path, size in sizes.items():
         distinct.setdefault(size, path)
     if len(distinct) > 1:

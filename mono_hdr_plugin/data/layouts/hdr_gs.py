@@ -258,7 +258,8 @@ def _write_model(scene: CapturedScene, model_folder: Path) -> None:
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
         reconstruction.add_image_with_trivial_frame(image, pose)
     if scene.points is not None:
-        colours = (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+        colours = (np.full((len(scene.points), 3), 128, np.uint8) if scene.point_colors is None  # grey, as 3DGS
+                   else (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
         for xyz, rgb in zip(scene.points.double().numpy(), colours):
             reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
     model_folder.mkdir(parents=True, exist_ok=True)
