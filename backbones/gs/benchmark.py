@@ -26,7 +26,7 @@ from typing import Any, Callable, ClassVar
 import torch
 
 from backbones.gs.model import GaussianBackbone, GaussianConfig
-from backbones.gs.rasterizer import project_gaussians, rasterize
+from backbones.gs.rasterizer import Backend, project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
@@ -82,7 +82,7 @@ def anchor_scene(gaussians: int, height: int, width: int, seed: int = 0) -> tupl
                     "sh": sh}
 
 
-def _training_pass(camera: Camera, scene: dict, backend: str, channels: int) -> Callable[[], None]:
+def _training_pass(camera: Camera, scene: dict, backend: Backend, channels: int) -> Callable[[], None]:
     """One forward + backward as in training: activations, projection, SH, compositing."""
     leaves = {name: value.clone().requires_grad_() for name, value in scene.items() if name != "sh"}
     leaves["sh_dc"] = scene["sh"][:, :1].clone().requires_grad_()
@@ -133,7 +133,7 @@ def interleaved_medians(steps: dict[str, Callable[[], None]], repeats: int) -> d
     shared machine hits all of them alike."""
     for step in steps.values():
         step()  # warm-up: builds the extension, fills caches
-    times = {name: [] for name in steps}
+    times: dict[str, list[float]] = {name: [] for name in steps}
     for _ in range(repeats):
         for name, step in steps.items():
             start = time.perf_counter()

@@ -3,7 +3,7 @@
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 import tyro
@@ -176,7 +176,7 @@ class GaussianBackbone(Backbone):
             projected.means2d.retain_grad()
         raw_colors = visible_colors(self.active_sh_degree, self.sh_dc, self.sh_rest, self.means, projected.index,
                                     camera.center, backend=self.config.backend)
-        extras = {"projected": projected}
+        extras: dict[str, Any] = {"projected": projected}
 
         def composite(values: Tensor) -> Tensor:
             """values [V, C] of the visible Gaussians -> image [H, W, C]; leaves alpha in extras."""

@@ -53,8 +53,9 @@ def camera_from_viewer(view: ViewerCamera, height: int, near: float, far: float)
 def viewer_from_camera(camera: Camera) -> ViewerCamera:
     """The viewer camera that sees what `camera` sees (its vertical field of view and aspect)."""
     x, y, z, w = Rotation.from_matrix(camera.c2w[:3, :3].double().numpy()).as_quat()
+    center = camera.center
     return ViewerCamera(wxyz=(float(w), float(x), float(y), float(z)),
-                        position=tuple(float(v) for v in camera.center),
+                        position=(float(center[0]), float(center[1]), float(center[2])),
                         fov=2.0 * math.atan(0.5 * camera.height / camera.fy), aspect=camera.width / camera.height)
 
 

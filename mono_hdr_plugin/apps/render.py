@@ -147,8 +147,9 @@ def write_video(path: Path, frames, fps: int) -> None:
     """Write uint8 frames [H, W, 3] as H.264 MP4 at their own size, atomically."""
     with atomic_path(path) as temporary:
         # macro_block_size=1: keep the frame size (imageio-ffmpeg would otherwise resize to multiples of 16)
-        with imageio.get_writer(temporary, fps=fps, codec="libx264", quality=8, macro_block_size=1,
-                                pixelformat="yuv420p", ffmpeg_log_level="error") as writer:
+        writer = imageio.get_writer(temporary, fps=fps, codec="libx264", quality=8, macro_block_size=1,
+                                    pixelformat="yuv420p", ffmpeg_log_level="error")
+        with writer:  # imageio's stub types `with ... as` as the base class, which has no append_data
             for frame in frames:
                 writer.append_data(frame)
 

@@ -90,6 +90,11 @@ class ViewExposures(nn.Module):
     reference_exposure: t_ref in seconds; response [256, 3]: the camera's response table.
     """
 
+    initial_log: Tensor
+    reference: Tensor
+    reference_exposure: Tensor
+    response: Tensor
+
     def __init__(self, initial_log: Tensor, reference: int, reference_exposure: float, response: np.ndarray,
                  learn: bool, learning_rate: float = 0.01, names: list[str] | None = None, known: bool = True):
         super().__init__()
@@ -118,6 +123,8 @@ class ViewExposures(nn.Module):
     def log_relative(self, view: int | None = None, exposure: float | None = None) -> Tensor:
         """ln(t / t_ref) of training view `view` (starting value plus learned), or of `exposure` seconds."""
         if view is None:
+            if exposure is None:
+                raise TypeError("log_relative needs a training view or an exposure in seconds")
             return torch.log(torch.tensor(float(exposure)) / self.reference_exposure)
         if view == int(self.reference):
             return self.initial_log[view]
@@ -202,12 +209,12 @@ def photometric_log_exposures(views, points: Tensor, response: np.ndarray, refer
     radiance is solved by a two-way median (Tukey's median polish), which occlusions and
     highlights do not move. A view that sees no usable point keeps 0.
     """
-    points = points.double().numpy()
-    logs = np.full((len(views), len(points)), np.nan)
-    clipped = np.zeros(len(points), bool)
+    positions = points.double().numpy()
+    logs = np.full((len(views), len(positions)), np.nan)
+    clipped = np.zeros(len(positions), bool)
     for row, view in enumerate(views):
         camera = view.camera
-        local = points @ camera.w2c[:3, :3].double().numpy().T + camera.w2c[:3, 3].double().numpy()
+        local = positions @ camera.w2c[:3, :3].double().numpy().T + camera.w2c[:3, 3].double().numpy()
         depth = local[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             cols = np.floor(camera.fx * local[:, 0] / depth + camera.cx)

@@ -33,7 +33,7 @@ def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
     with atomic_path(path, durable=True) as temporary, open(temporary, "wb") as handle:
         writer = _RecordingWriter(handle)
         try:
-            torch.save(payload, writer)
+            torch.save(payload, writer)  # type: ignore[arg-type]  # stub wants IO[bytes]; torch only writes, flushes
         except Exception as error:
             if writer.error is None:
                 raise

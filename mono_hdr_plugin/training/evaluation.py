@@ -16,7 +16,12 @@ from mono_hdr_plugin.training.pipeline import Frame, Pipeline
 def first_per_camera(views: list[View]) -> list[View]:
     """One view per camera pose (view_id), the first of its exposures: HDR is rendered once per camera."""
     seen: set[int] = set()
-    return [view for view in views if not (view.view_id in seen or seen.add(view.view_id))]
+    first: list[View] = []
+    for view in views:
+        if view.view_id not in seen:
+            seen.add(view.view_id)
+            first.append(view)
+    return first
 
 
 def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None) -> list[View]:
@@ -62,6 +67,7 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
             if lpips_model is not None:
                 row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
             if id(view) in hdr_views:
+                assert view.hdr is not None  # hdr_views holds only views with a ground-truth HDR
                 row.update(hdr_metrics(output.hdr, view.hdr))
                 if lpips_model is not None:
                     row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))

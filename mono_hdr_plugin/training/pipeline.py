@@ -148,7 +148,10 @@ class Pipeline(nn.Module):
         camera moved on). Depth and opacity come with the colours where the backbone composites
         them (NeRF); where depth costs an extra pass (3DGS's "render_depth"), only `with_depth`.
         """
-        ldr, hdr, depth, alpha = [], [], [], []
+        ldr: list[torch.Tensor] = []
+        hdr: list[torch.Tensor] = []
+        depth: list[torch.Tensor | None] = []
+        alpha: list[torch.Tensor | None] = []
         for part in self.camera_chunks(camera):
             if cancelled is not None and cancelled():
                 raise RenderCancelled
@@ -164,7 +167,8 @@ class Pipeline(nn.Module):
         shape = (camera.height, camera.width)
 
         def image(pieces: list[torch.Tensor | None]) -> torch.Tensor | None:
-            return None if any(piece is None for piece in pieces) else torch.cat(pieces).reshape(shape)
+            present = [piece for piece in pieces if piece is not None]
+            return None if len(present) < len(pieces) else torch.cat(present).reshape(shape)
 
         return Frame(ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0), hdr=torch.cat(hdr).reshape(*shape, 3),
                      depth=image(depth), alpha=image(alpha), exposure=exposure)
@@ -173,8 +177,10 @@ class Pipeline(nn.Module):
     def render_matching(self, camera: Camera, image: torch.Tensor) -> Frame:
         """A whole image whose LDR is brightened to match the photo `image` [H, W, 3] as well as one
         exposure can: for views whose exposure is unknown (needs `exposures`)."""
-        output = self.render(camera, float(self.exposures.reference_exposure))
-        output.ldr = self.exposures.brighten(output.ldr, self.exposures.fit_log_relative(output.ldr, image))  # in [0, 1]
+        exposures = self.exposures
+        assert exposures is not None, "render_matching needs per-view exposures (Pipeline.exposures)"
+        output = self.render(camera, float(exposures.reference_exposure))
+        output.ldr = exposures.brighten(output.ldr, exposures.fit_log_relative(output.ldr, image))  # in [0, 1]
         return output
 
     @contextlib.contextmanager

@@ -135,17 +135,18 @@ def table_variants(config: BenchPaperConfig) -> list[Variant]:
         variants += [Variant("table1", f"{row} {method}", spec(row, method), PAPER_TABLE1[(row, method)],
                              PAPER_TABLE1_LDR[(row, method)], config.seeds, config.scenes)
                      for row in PAPER_BASELINE if row in backbones for method in (PAPER_BASELINE[row], "mono")]
+    def ablation(table: str, name: str, row_spec: RunSpec, figure: float | None) -> Variant:
+        return Variant(table, name, row_spec, figure, seeds=config.ablation_seeds, scenes=ablation_scenes)
+
     if "3DGS" in backbones:
-        ablation = {"seeds": config.ablation_seeds, "scenes": ablation_scenes}
         if "converters" in config.tables:
-            variants += [Variant("converters", m, spec("3DGS", m), PAPER_CONVERTERS[m], **ablation)
-                         for m in PAPER_CONVERTERS]
+            variants += [ablation("converters", m, spec("3DGS", m), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS]
         if "losses" in config.tables:
-            variants += [Variant("losses", name, spec("3DGS", "mono", losses=switches), figure, **ablation)
+            variants += [ablation("losses", name, spec("3DGS", "mono", losses=switches), figure)
                          for name, (switches, figure) in LOSS_ROWS.items()]
         if "ratios" in config.tables:
-            variants += [Variant("ratios", f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r],
-                                 **ablation) for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]]
+            variants += [ablation("ratios", f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r])
+                         for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]]
     return variants
 
 
@@ -156,7 +157,8 @@ def tuning_trials(config: BenchPaperConfig) -> dict[tuple[str, str], list[RunSpe
     for row, backbone in backbones.items():
         backbone_class = get_backbone(backbone)
         preset_configs = backbone_class.presets()
-        preset_config = preset_configs.get(presets.get(backbone), next(iter(preset_configs.values())))
+        chosen = presets.get(backbone)  # a name parse_presets checked; else the first preset, the default
+        preset_config = preset_configs[chosen] if chosen is not None else next(iter(preset_configs.values()))
         space = {f"backbone.{path}": values for path, values in backbone_class.tuning_space(preset_config).items()}
         space |= METHOD_TUNING_SPACE
         grid = [tuple(zip(space, values)) for values in itertools.product(*space.values())]
@@ -221,8 +223,9 @@ def seed_values(variant: Variant, store: RowStore, exposures: tuple[int, ...], m
     for seed in variant.seeds:
         runs = [store.rows.get(RunSpec(**{**variant.spec.__dict__, "scene": s, "exposure_index": e, "seed": seed}).key)
                 for s in (scenes or variant.scenes) for e in exposures]
-        if runs and all(r is not None and r["status"] == "ok" and r["final"][metric] is not None for r in runs):
-            values[seed] = statistics.fmean(r["final"][metric] for r in runs)
+        finished = [r for r in runs if r is not None and r["status"] == "ok" and r["final"][metric] is not None]
+        if runs and len(finished) == len(runs):
+            values[seed] = statistics.fmean(r["final"][metric] for r in finished)
     return values
 
 

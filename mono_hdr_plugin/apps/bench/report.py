@@ -7,7 +7,7 @@ from typing import Any, Callable
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+    return "n/a" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def label(spec: dict[str, Any]) -> str:

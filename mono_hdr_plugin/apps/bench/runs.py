@@ -305,16 +305,23 @@ def _run_sequential(specs, budget, store, runs_dir, executor, on_row) -> None:
         for spec in specs:
             progress.update(task, description=f"{spec.backbone}/{spec.method} {spec.scene} t{2 * spec.exposure_index + 1} "
                                               f"seed {spec.seed}")
-            for attempt in range(1, executor.retries + 2):
-                try:
-                    row = run_row(spec, budget, str(runs_dir), executor.cpus_per_run)
-                    break
-                except Exception as error:  # recorded, never silently dropped
-                    console.print(f"[yellow]{spec.key}: attempt {attempt} failed: {error}")
-                    row = failed_row(spec, error, attempt)
+            row = _run_with_retries(spec, budget, runs_dir, executor)
             store.add(row)
             on_row(row)
             progress.advance(task)
+
+
+def _run_with_retries(spec: RunSpec, budget: RunBudget, runs_dir: Path, executor: ExecutorConfig) -> dict[str, Any]:
+    """`spec`'s row, tried up to 1 + `executor.retries` times; its failure's record when the last attempt fails."""
+    attempt = 1
+    while True:
+        try:
+            return run_row(spec, budget, str(runs_dir), executor.cpus_per_run)
+        except Exception as error:  # recorded, never silently dropped
+            console.print(f"[yellow]{spec.key}: attempt {attempt} failed: {error}")
+            if attempt > executor.retries:
+                return failed_row(spec, error, attempt)
+        attempt += 1
 
 
 def _run_ray(specs, budget, store, runs_dir, executor, on_row) -> None:
