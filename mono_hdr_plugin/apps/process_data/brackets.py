@@ -119,15 +119,16 @@ def plan_bracket(members: list[int], photos: list[PhotoRecord], staged: list[Sta
         encoded, linear = photo_pixels(staged[i], raw_response)
         samples.append(response_sample(encoded if linear is None else linear))
     known = photos[members[0]].exposure is not None
-    order = (sorted(range(len(members)), key=lambda k: photos[members[k]].exposure) if known
-             else brightness_order(samples))
+    times = [time for time in (photos[i].exposure for i in members) if time is not None]
+    assert not known or len(times) == len(members)  # assign_exposures gives all photos a time or none
+    order = sorted(range(len(members)), key=lambda k: times[k]) if known else brightness_order(samples)
     start = min(placed, key=lambda k: abs(order.index(k) - len(order) // 2))
     kept = aligned_members(samples, order, start, response)
     dropped = [names[k] for k in range(len(members)) if k not in kept]
     notes = [(f"{', '.join(dropped)}: do not line up with the other photos of their bracket "
               f"({', '.join(names[k] for k in kept)}) and are left out of its merge")] if dropped else []
     if known:
-        exposures = [photos[members[k]].exposure for k in kept]
+        exposures = [times[k] for k in kept]
     else:
         exposures = estimate_relative_exposures([samples[k] for k in kept], response, [names[k] for k in kept])
     if len(kept) < 2 or all(same_exposure(e, exposures[0]) for e in exposures):

@@ -28,6 +28,7 @@ def find_inputs(config: ProcessDataConfig, frames: Path,
                 console: Console) -> tuple[list[Path], list[str], VideoRecord | None]:
     """The photos of --images, or the frames of --video extracted into `frames`; the ignored files; the video."""
     if config.video is None:
+        assert config.images is not None  # check_config requires one of --images and --video
         return (*find_photos(config.images), None)
     kept, dropped = extract_frames(config.video, frames, config.fps, min_sharpness=config.min_sharpness,
                                    console=console)
@@ -100,6 +101,7 @@ class StagedPhoto:
 def photo_pixels(photo: StagedPhoto, raw_response: RawResponse) -> tuple[np.ndarray, np.ndarray | None]:
     """(LDR code values, linear pixels or None): a RAW photo is both; any other photo only the first."""
     if photo.raw:
+        assert photo.linear is not None  # stage_photos saves the linear pixels of every RAW photo
         linear = np.load(photo.linear)
         return encode(linear, raw_response), linear
     return load_photo(photo.source)[0], None

@@ -11,11 +11,11 @@ nothing and costs nothing. Stages with a physical inverse have one (`invert_*`).
 """
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, cast
 
 import numpy as np
 
-from mono_hdr_plugin.core.colour import RESPONSE_CURVES, decode_curve, encode_curve
+from mono_hdr_plugin.core.colour import RESPONSE_CURVES, ResponseCurve, decode_curve, encode_curve
 
 PHYSICAL_ORDER = ("exposure", "gain", "offset", "noise", "vignette", "white_balance", "crf",
                   "clip", "quantize")
@@ -117,11 +117,13 @@ def vignette_falloff(height: int, width: int, strength: float) -> np.ndarray:
 
 def apply_vignette(image, settings: CaptureSettings, context):
     """Lens vignetting: darker towards the corners."""
-    return image * vignette_falloff(*image.shape[:2], settings.vignette)
+    height, width = image.shape[:2]
+    return image * vignette_falloff(height, width, settings.vignette)
 
 
 def invert_vignette(image, settings, context):
-    return image / vignette_falloff(*image.shape[:2], settings.vignette)
+    height, width = image.shape[:2]
+    return image / vignette_falloff(height, width, settings.vignette)
 
 
 def apply_white_balance(image, settings: CaptureSettings, context):
@@ -141,7 +143,7 @@ def response_curve(x: np.ndarray, settings: CaptureSettings) -> np.ndarray:
     """
     x = np.clip(x, 0, None)
     if settings.crf in RESPONSE_CURVES:
-        return encode_curve(x, settings.crf).astype(np.float32)
+        return encode_curve(x, cast(ResponseCurve, settings.crf)).astype(np.float32)
     if settings.crf == "gamma":
         return (x ** (1.0 / settings.gamma)).astype(np.float32)
     # Film: a sigmoid in log exposure, (1 + k) x^n / (x^n + k), scaled so that film(1) = 1.
@@ -154,7 +156,7 @@ def inverse_response_curve(y: np.ndarray, settings: CaptureSettings) -> np.ndarr
     """Inverse of `response_curve` on its range."""
     y = np.clip(y, 0, None)
     if settings.crf in RESPONSE_CURVES:
-        return decode_curve(y, settings.crf).astype(np.float32)
+        return decode_curve(y, cast(ResponseCurve, settings.crf)).astype(np.float32)
     if settings.crf == "gamma":
         return (y**settings.gamma).astype(np.float32)
     n, k = settings.film_contrast, settings.film_shoulder

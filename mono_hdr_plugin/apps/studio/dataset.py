@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points
+from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points, constant
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import SceneRender, render_scene
@@ -50,14 +50,14 @@ def _initial_points(scene: StudioScene, render: SceneRender, views: list[Capture
     The same kind of points structure-from-motion gives a real capture.
     """
     rng = np.random.default_rng(0)
-    points, colours = [], []
+    seen_points, seen_colours = [], []
     for view in views:
         if view.split != "train":
             continue
         hit = render.hit[view.view_id]
-        points.append(render.positions[view.view_id][hit])
-        colours.append(view.shots[len(view.shots) // 2].image()[hit])
-    points, colours = np.concatenate(points), np.concatenate(colours)
+        seen_points.append(render.positions[view.view_id][hit])
+        seen_colours.append(view.shots[len(view.shots) // 2].image()[hit])
+    points, colours = np.concatenate(seen_points), np.concatenate(seen_colours)
     keep = rng.choice(len(points), min(MAX_INIT_POINTS, len(points)), replace=False)
     return torch.from_numpy(points[keep]).float(), torch.from_numpy(colours[keep]).float()
 
@@ -68,7 +68,7 @@ def studio_captured_scene(scene: StudioScene, seed: int = 0) -> CapturedScene:
     views = [CapturedView(view_id=index, camera=camera, split=scene.split(index), name=f"{index:03d}",
                           shots=[Shot(exposure, _photo(render, scene, index, e, seed), f"{index:03d}_{e}")
                                  for e, exposure in enumerate(scene.exposures)],
-                          hdr=lambda index=index: render.radiance[index])
+                          hdr=constant(render.radiance[index]))
              for index, camera in enumerate(_cameras_with_depth_range(scene, render))]
     bounds_min, bounds_max = bounds_from_points(render.positions[render.hit])
     points, colours = _initial_points(scene, render, views)

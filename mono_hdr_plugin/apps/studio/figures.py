@@ -39,5 +39,7 @@ def write_figures(scene_name: str = "demo", out: Path = Path("docs"), view: int 
 
 if __name__ == "__main__":
     arguments = sys.argv[1:]
-    for path in write_figures(*(arguments[:1] or ["demo"]), *[Path(a) for a in arguments[1:2]]):
+    scene_name = arguments[0] if arguments else "demo"
+    paths = write_figures(scene_name, Path(arguments[1])) if len(arguments) > 1 else write_figures(scene_name)
+    for path in paths:
         print(path)

@@ -154,18 +154,18 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     mitsuba = _mitsuba()
     content = _to_mitsuba(scene.content(), mitsuba)
     cameras = scene.cameras()
-    first, second, positions, hit = [], [], [], []
+    first_views, second_views, positions, hit = [], [], [], []
     with Progress(console=Console(stderr=True), transient=True) as progress:
         task = progress.add_task(f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)",
                                  total=len(cameras))
         for index, camera in enumerate(cameras):
-            first.append(_render_view(content, camera, scene, mitsuba, seed=2 * index))
-            second.append(_render_view(content, camera, scene, mitsuba, seed=2 * index + 1))
+            first_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index))
+            second_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index + 1))
             position, visible = _render_geometry(content, camera, mitsuba)
             positions.append(position)
             hit.append(visible)
             progress.advance(task)
-    first, second = np.stack(first), np.stack(second)
+    first, second = np.stack(first_views), np.stack(second_views)
     scale = np.float32(radiance_scale(0.5 * (first + second), scene))
     first, second = first * scale, second * scale
     hdr_agreement, ldr_agreement = seed_agreement(first, second, scene)
@@ -190,8 +190,8 @@ def seed_agreement(first: np.ndarray, second: np.ndarray, scene: StudioScene) ->
     hdr, ldr = [], []
     for a, b in zip(first, second):
         hdr.append(psnr(normalise_hdr(torch.from_numpy(a)), normalise_hdr(torch.from_numpy(b))))
-        photos = [torch.from_numpy(capture(x, middle, effects, scene.capture)) for x in (a, b)]
-        ldr.append(psnr(*photos))
+        photo_a, photo_b = (torch.from_numpy(capture(x, middle, effects, scene.capture)) for x in (a, b))
+        ldr.append(psnr(photo_a, photo_b))
     return np.asarray(hdr), np.asarray(ldr)
 
 

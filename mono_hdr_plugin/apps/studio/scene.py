@@ -7,7 +7,7 @@ render cache without importing Mitsuba.
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 import torch
@@ -97,7 +97,7 @@ class StudioScene:
     def cameras(self) -> list[Camera]:
         return self.rig.cameras(self.width, self.height)
 
-    def split(self, view: int) -> str:
+    def split(self, view: int) -> Literal["train", "test"]:
         """Alternate views: even views train, odd views test."""
         return "train" if view % 2 == 0 else "test"
 

@@ -1,5 +1,7 @@
 """The built-in scenes. Each exercises something different; all exceed 1e4 : 1 dynamic range."""
 
+from typing import TypedDict
+
 import numpy as np
 
 from mono_hdr_plugin.apps.studio.capture import CaptureSettings
@@ -148,7 +150,14 @@ def coloured_light_content() -> dict:
     }
 
 
-FORWARD_ARC = dict(azimuth_deg=(-120.0, -60.0), elevation_deg=(12.0, 30.0))
+class ArcAngles(TypedDict):
+    """The camera arc of a CameraRig, passed as keyword arguments."""
+
+    azimuth_deg: tuple[float, float]
+    elevation_deg: tuple[float, float]
+
+
+FORWARD_ARC = ArcAngles(azimuth_deg=(-120.0, -60.0), elevation_deg=(12.0, 30.0))
 
 BUILTIN_SCENES = (
     StudioScene(

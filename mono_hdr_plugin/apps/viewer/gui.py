@@ -25,8 +25,15 @@ TRAINING_REFRESH = 2.0
 
 def viewer_camera_of(client) -> ViewerCamera:
     camera = client.camera
-    return ViewerCamera(wxyz=tuple(float(v) for v in camera.wxyz), position=tuple(float(v) for v in camera.position),
-                        fov=float(camera.fov), aspect=float(camera.aspect))
+    w, x, y, z = (float(v) for v in camera.wxyz)
+    return ViewerCamera(wxyz=(w, x, y, z), position=_point(camera.position), fov=float(camera.fov),
+                        aspect=float(camera.aspect))
+
+
+def _point(values) -> tuple[float, float, float]:
+    """A position or direction as three floats, the way viser takes them."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 class Viewer:
@@ -64,11 +71,11 @@ class Viewer:
     def _place_initial_camera(self) -> None:
         first = next(iter(self.renderer.views.values())).camera
         start = viewer_from_camera(first)
-        self.server.scene.set_up_direction(tuple(float(v) for v in self.renderer.up))
+        self.server.scene.set_up_direction(_point(self.renderer.up))
         initial = self.server.initial_camera
         initial.position = start.position
-        initial.look_at = tuple(float(v) for v in self.renderer.focus)
-        initial.up = tuple(float(v) for v in self.renderer.up)
+        initial.look_at = _point(self.renderer.focus)
+        initial.up = _point(self.renderer.up)
         initial.fov = start.fov
 
     def _add_controls(self, max_resolution: int, training: bool) -> None:
@@ -111,7 +118,8 @@ class Viewer:
         model = self.renderer.exposure_model(self.renderer.snapshots.latest())
         self._syncing_exposure = True
         try:
-            self.exposure_time.value = float(f"{model.exposure_at(self.ev.value):.6g}")
+            # viser's value setter is invisible to mypy (a method sits between it and the getter)
+            self.exposure_time.value = float(f"{model.exposure_at(self.ev.value):.6g}")  # type: ignore[misc]
         finally:
             self._syncing_exposure = False
 
@@ -125,7 +133,7 @@ class Viewer:
             ev = model.ev_of(max(float(self.exposure_time.value), 1e-9))
             self._syncing_exposure = True
             try:
-                self.ev.value = round(min(10.0, max(-10.0, ev)), 1)
+                self.ev.value = round(min(10.0, max(-10.0, ev)), 1)  # type: ignore[misc]  # viser's setter, as above
             finally:
                 self._syncing_exposure = False
         self.settings_changed()
@@ -154,6 +162,8 @@ class Viewer:
             return
         try:
             shown = loop.render_once(full=True)
+            if shown.frame is None:  # the view became an error map away from a dataset camera since the check
+                raise ValueError("the view has no rendered frame now; go back to the view and save again")
             paths = save_view(self.out, shown.frame, shown.image, self.output_key())
         except Exception as error:  # noqa: BLE001 - a failed save is reported in the browser, the viewer goes on
             client.add_notification("Could not save", str(error), color="red")

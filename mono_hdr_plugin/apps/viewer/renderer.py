@@ -102,10 +102,10 @@ class ViewerRenderer:
         if view is None:
             return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
                                "go to a dataset camera (Camera) to compare with its ground truth")
-        if output == "error-hdr" and view.hdr is None:
-            return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
-                               f"{view.stem} has no HDR ground truth: choose the LDR error")
         if output == "error-hdr":
+            if view.hdr is None:
+                return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
+                                   f"{view.stem} has no HDR ground truth: choose the LDR error")
             frame = snapshot.pipeline.render(view.camera, model.reference_exposure)
             error = (normalise_hdr(frame.hdr) - normalise_hdr(view.hdr)).abs().mean(-1)
             note = f"{view.stem}: HDR PSNR {hdr_metrics(frame.hdr, view.hdr)['hdr_psnr']:.2f} dB (mu-law, own max)"

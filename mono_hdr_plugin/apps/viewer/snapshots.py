@@ -47,4 +47,5 @@ class ModelSnapshots:
 
     def latest(self) -> Snapshot:
         with self._lock:
+            assert self._latest is not None  # __init__ publishes the first model
             return self._latest

@@ -103,21 +103,24 @@ def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def _linked(a: BracketCandidate, b: BracketCandidate, scale: float, tolerances: BracketTolerances) -> bool:
     """Whether photo b, taken after a, shows the same viewpoint."""
-    timed = a.timestamp is not None and b.timestamp is not None
-    if timed and abs(b.timestamp - a.timestamp) > tolerances.max_gap + (a.exposure or 0.0):
+    if a.timestamp is not None and b.timestamp is not None:
+        if abs(b.timestamp - a.timestamp) > tolerances.max_gap + (a.exposure or 0.0):
+            return False
+        if a.auto_bracket and b.auto_bracket or a.center is None or b.center is None:
+            return True
+    if a.center is None or b.center is None:
         return False
-    if timed and (a.auto_bracket and b.auto_bracket or a.center is None or b.center is None):
-        return True
-    return (a.center is not None and b.center is not None
-            and float(np.linalg.norm(a.center - b.center)) <= tolerances.position * scale
+    assert a.rotation is not None and b.rotation is not None  # structure from motion sets centre and rotation together
+    return (float(np.linalg.norm(a.center - b.center)) <= tolerances.position * scale
             and _rotation_angle_deg(a.rotation, b.rotation) <= tolerances.angle_deg)
 
 
 def _check_not_all_equal(run: list[int], photos: list[BracketCandidate]) -> None:
     """A camera bracket whose exposures are all equal cannot be merged: the bracket varied something else."""
     members = [photos[i] for i in run]
-    if (len(members) > 1 and all(p.auto_bracket for p in members) and all(p.exposure is not None for p in members)
-            and all(same_exposure(p.exposure, members[0].exposure) for p in members)):
+    exposures = [p.exposure for p in members if p.exposure is not None]
+    if (len(members) > 1 and all(p.auto_bracket for p in members) and len(exposures) == len(members)
+            and all(same_exposure(exposure, exposures[0]) for exposure in exposures)):
         raise DatasetError(f"{', '.join(p.name for p in members)}: the camera marked these photos as one exposure "
                            f"bracket, but all have the exposure {members[0].exposure:.6g} s, so there is nothing "
                            "to merge. The camera may have bracketed focus or white balance: check its bracketing "
@@ -142,8 +145,9 @@ def detect_brackets(photos: list[BracketCandidate], scale: float,
         sets.append([run[0]])
         for index in run[1:]:
             exposure = photos[index].exposure
-            repeats = exposure is not None and any(photos[j].exposure is not None and
-                                                   same_exposure(exposure, photos[j].exposure) for j in sets[-1])
+            others = [photos[j].exposure for j in sets[-1]]
+            repeats = exposure is not None and any(other is not None and same_exposure(exposure, other)
+                                                   for other in others)
             if repeats:
                 sets.append([index])
             else:

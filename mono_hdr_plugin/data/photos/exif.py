@@ -96,9 +96,9 @@ def make_exif(exposure: Fraction | None = None, iso: int | None = None, f_number
     for tag, value in ((TAG_EXPOSURE_TIME, exposure), (TAG_F_NUMBER, f_number)):
         if value is not None:
             details[tag] = _rational(value)
-    for tag, value in ((TAG_ISO, iso), (TAG_FOCAL_35MM, focal_35mm), (TAG_EXPOSURE_MODE, exposure_mode)):
-        if value is not None:
-            details[tag] = value
+    for tag, number in ((TAG_ISO, iso), (TAG_FOCAL_35MM, focal_35mm), (TAG_EXPOSURE_MODE, exposure_mode)):
+        if number is not None:
+            details[tag] = number
     if timestamp is not None:
         moment = datetime.fromtimestamp(timestamp)
         details[TAG_DATE_TIME_ORIGINAL] = moment.strftime(DATE_FORMAT)

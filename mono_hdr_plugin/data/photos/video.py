@@ -89,6 +89,7 @@ def extract_frames(video: Path, folder: Path, fps: float, oversample: int = 3, m
     threshold = min_sharpness * float(np.median([frame.sharpness for frame in best]))
     for frame in best:
         if frame.sharpness < threshold:
+            assert frame.path is not None  # every frame in `best` was written above
             frame.path.unlink()
             frame.path = None
     kept = [frame for frame in best if frame.path is not None]
