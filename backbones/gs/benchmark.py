@@ -31,7 +31,8 @@ from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.io import write_json
-from mono_hdr_plugin.methods import MethodConfig, MonoHDR
+from mono_hdr_plugin.methods.base import MethodConfig
+from mono_hdr_plugin.methods.mono import MonoHDR
 
 SIZES = ((10_000, 128, 128), (50_000, 256, 256))
 

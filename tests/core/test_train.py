@@ -8,7 +8,7 @@ import torch
 
 import register_backbone  # examples/, put on sys.path by conftest
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
 from mono_hdr_plugin.training.trained import load_pipeline
