@@ -15,9 +15,9 @@ from mono_hdr_plugin.training.trained import load_pipeline
 from mono_hdr_plugin.training.trainer import Trainer
 
 
-def make_config(tmp_path, backbone_config, **overrides):
-    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                     save_renders=False, checkpoint_every=10**9)
+def make_config(tmp_path, backbone_config, method: str = "mono", **overrides):
+    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
+                                                             quiet=True, save_renders=False, checkpoint_every=10**9)
     for key, value in overrides.items():
         if hasattr(config.hdr, key):
             setattr(config.hdr, key, value)
