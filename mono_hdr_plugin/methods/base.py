@@ -56,7 +56,8 @@ class MethodConfig:
     converter_lr: float | None = None
     """Learning rate of L2H-CC / H2L-CC / the CRF networks; default: the backbone's converter_lr
     (5e-4, hard-coded in the official codes; the NeRF cpu field: the rate of its own MLPs)."""
-    options: Any = None  # the method's own flags: an instance of its options_class (None: that class's defaults)
+    # The method's own flags, an instance of its options_class (None: its defaults), flagged without a prefix.
+    options: Annotated[Any, tyro.conf.OmitArgPrefixes] = None
 
     flag_rules: ClassVar = {"hidden": at_least(1), "alpha": NON_NEGATIVE, "beta": NON_NEGATIVE,
                             "dssim_weight": FRACTION, "converter_lr": POSITIVE}
