@@ -38,10 +38,9 @@ def run(scene_name: str, method: str, preset: str, overrides: tuple, steps: int,
         out: Path, seed: int = 0) -> dict:
     scene = load_scene(DataConfig(scene=scene_name))
     backbone = configured(preset, overrides)
-    config = train_config_for(type(backbone))(backbone=backbone, preset=preset, out=out, quiet=True, max_steps=steps,
-                                              save_renders=False, checkpoint_every=10**9, max_eval_views=eval_views,
-                                              seed=seed)
-    config.hdr.method = method
+    config = train_config_for(type(backbone), method)(backbone=backbone, preset=preset, out=out, quiet=True,
+                                                      max_steps=steps, save_renders=False, checkpoint_every=10**9,
+                                                      max_eval_views=eval_views, seed=seed)
     trainer = Trainer(config, "gs", scene)
     curve, cpu = [], 0.0
     while trainer.step < steps:

@@ -22,7 +22,7 @@ from mono_hdr_plugin.apps.bench.runs import cached_scene, run_facts
 from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.methods import MethodConfig
+from mono_hdr_plugin.methods.base import MethodConfig
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 

@@ -121,9 +121,8 @@ def main() -> None:
     parser.add_argument("--method", default="mono")
     args = parser.parse_args()
     scene = make_capture()
-    config = train_config_for(VoxelGridConfig)(max_steps=args.steps, quiet=True, save_renders=False,
-                                               checkpoint_every=10**9)
-    config.hdr.method = args.method
+    config = train_config_for(VoxelGridConfig, args.method)(max_steps=args.steps, quiet=True, save_renders=False,
+                                                            checkpoint_every=10**9)
     config.out = config.out.parent / "voxel-grid-example"
     trainer = Trainer(config, "voxel-grid", scene)
     before = trainer.evaluate()

@@ -50,6 +50,9 @@ WIRING = "tests/core/test_loss_wiring.py"
 # test_train.py without its 150-step end-to-end run (the slowest test by far; the others cover the step)
 QUICK_TRAIN_TESTS = ("tests/core/test_train.py", "-k", "not hdr_error_drops")
 KNOWN_ANSWER = "tests/core/test_evaluation_known_answer.py::TestEvaluateKnownAnswer"
+METHOD_TESTS = ("tests/core/test_methods.py", "tests/core/test_method_details.py",
+                f"{WIRING}::test_defaults_are_the_papers", "tests/core/test_registry.py", f"{WIRING}::TestEveryLossSwitch",
+                f"{WIRING}::TestWeightsByFiniteDifferences", KNOWN_ANSWER)
 TARGETS = {
     "metrics": Target("mono_hdr_plugin.core.metrics", "mono_hdr_plugin/core/metrics.py", (
         "tests/core/test_metric_values.py", "tests/core/test_metrics.py", KNOWN_ANSWER)),
@@ -58,10 +61,11 @@ TARGETS = {
     "converters": Target("mono_hdr_plugin.core.converters", "mono_hdr_plugin/core/converters.py", (
         "tests/core/test_converters.py", "tests/core/test_method_details.py", "tests/core/test_methods.py",
         KNOWN_ANSWER)),
-    "methods": Target("mono_hdr_plugin.methods", "mono_hdr_plugin/methods.py", (
-        "tests/core/test_methods.py", "tests/core/test_method_details.py", f"{WIRING}::test_defaults_are_the_papers",
-        "tests/core/test_registry.py", f"{WIRING}::TestEveryLossSwitch", f"{WIRING}::TestWeightsByFiniteDifferences",
-        KNOWN_ANSWER)),
+    "methods": Target("mono_hdr_plugin.methods.base", "mono_hdr_plugin/methods/base.py", METHOD_TESTS),
+    "methods-mono": Target("mono_hdr_plugin.methods.mono", "mono_hdr_plugin/methods/mono.py", METHOD_TESTS),
+    "methods-crf": Target("mono_hdr_plugin.methods.crf_baseline", "mono_hdr_plugin/methods/crf_baseline.py",
+                          METHOD_TESTS),
+    "methods-hdr-nerf": Target("mono_hdr_plugin.methods.hdr_nerf", "mono_hdr_plugin/methods/hdr_nerf.py", METHOD_TESTS),
     "pipeline": Target("mono_hdr_plugin.training.pipeline", "mono_hdr_plugin/training/pipeline.py", (
         "tests/core/test_pipeline.py", "tests/core/test_train_step.py", f"{WIRING}::TestEveryLossSwitch",
         f"{WIRING}::TestHdrViewRatioRows", KNOWN_ANSWER, *QUICK_TRAIN_TESTS)),

@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from mono_hdr_plugin.core.validation import check_flags
+from mono_hdr_plugin.core.validation import FlagError, check_flags
 
 console = Console()
 errors = Console(stderr=True, soft_wrap=True)
@@ -49,9 +49,10 @@ class BackbonesConfig:
 
 @dataclass
 class PresetChoice:
-    """The first pass of `mono-hdr train`: which preset gives the defaults of the second."""
+    """The first pass of `mono-hdr train`: the preset gives the defaults of the second, the method its flags."""
 
     preset: str | None = None
+    method: str | None = None
 
 
 def command_train(argv: list[str]) -> None:
@@ -60,9 +61,10 @@ def command_train(argv: list[str]) -> None:
     from mono_hdr_plugin.training.trainer import run_training  # noqa: PLC0415
 
     backbones = BACKBONES.available()
-    # A preset changes the defaults of other flags, so tyro parses it first, alone.
+    # A preset changes the defaults of other flags and a method brings flags of its own, so tyro parses them first.
     choice, _ = tyro.cli(PresetChoice, args=[a for a in argv if a not in ("-h", "--help")],
                          return_unknown_args=True, prog="mono-hdr train")
+    refuse_flags_of_other_methods(argv, choice.method)
     backbone_arg = next((a for a in argv if a in backbones), None)
     defaults = {}
     for name, entry in backbones.items():
@@ -71,7 +73,8 @@ def command_train(argv: list[str]) -> None:
         if preset not in presets:
             raise ValueError(f"--preset {preset!r} is not a preset of backbone {name!r}; choose one of "
                              f"{', '.join(presets)} (listed by `mono-hdr backbones`)")
-        defaults[name] = train_config_for(entry.plugin.config_class)(backbone=presets[preset], preset=preset)
+        defaults[name] = train_config_for(entry.plugin.config_class, choice.method)(backbone=presets[preset],
+                                                                                    preset=preset)
     described = {name: (_first_line(backbones[name].plugin.__doc__), default)
                  for name, default in defaults.items()}
     config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
@@ -87,6 +90,20 @@ def command_train(argv: list[str]) -> None:
         return
     metrics = run_training(config, backbone_name)
     print_metrics(metrics, config.out / "metrics.json")
+
+
+def refuse_flags_of_other_methods(argv: list[str], method: str | None) -> None:
+    """A flag of another method's own options (`--unit-exposure-weight` without `--method hdr-nerf`) is
+    named with the methods that take it, instead of tyro's bare "unrecognized argument"."""
+    from mono_hdr_plugin.methods.base import METHODS, MethodConfig  # noqa: PLC0415
+
+    chosen = MethodConfig.method if method is None else method
+    own = set(METHODS.get(chosen).own_flags())
+    for flag in {arg.split("=", 1)[0] for arg in argv if arg.startswith("--")} - own:
+        owners = [name for name, entry in METHODS.available().items() if flag in entry.plugin.own_flags()]
+        if owners:
+            raise FlagError(f"{flag} is a flag of --method {' / '.join(owners)}, not of --method {chosen}: pass "
+                            f"--method {owners[0]} with it, or leave it out")
 
 
 def _first_line(text: str | None) -> str:
@@ -149,9 +166,13 @@ class MethodsConfig:
 
 
 def command_methods(config: MethodsConfig) -> None:
-    from mono_hdr_plugin.methods import METHODS  # noqa: PLC0415
+    from mono_hdr_plugin.methods.base import METHODS  # noqa: PLC0415
 
-    print_plugins(METHODS, "mono-hdr methods (--method)", ("what it is",), lambda cls: (_first_line(cls.__doc__),))
+    def describe(cls: type) -> tuple[str]:
+        flags = cls.own_flags()
+        return (_first_line(cls.__doc__) + (f"\nits own flags: {', '.join(flags)}" if flags else ""),)
+
+    print_plugins(METHODS, "mono-hdr methods (--method)", ("what it is",), describe)
 
 
 @dataclass

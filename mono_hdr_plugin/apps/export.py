@@ -21,25 +21,14 @@ from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_ve
 from mono_hdr_plugin.apps.display import to_display, to_uint8
 from mono_hdr_plugin.training.evaluation import first_per_camera
 from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
-from mono_hdr_plugin.methods import CrfBaseline, HdrMethod, MethodConfig, MonoHDR, build_method
+from mono_hdr_plugin.core.configs import config_from_dict
+from mono_hdr_plugin.methods.base import HdrMethod, build_method, method_config_for
 from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, FlagError, at_least
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
 CONVERTERS_VERSION = 1
 POINT_CLOUD_HDR = ("hdr_red", "hdr_green", "hdr_blue")
-
-HDR_RECIPES = {
-    "mono": "colour c = the Gaussian's LDR colour (3DGS: max(SH(view direction) + 0.5, 0)); hdr = L2H-CC(c) per "
-            "channel i: h = relu(l2h.latent.weight[i] * c_i + l2h.latent.bias[i]); (X, S, Y) = h @ "
-            "l2h.heads.weight[i] + l2h.heads.bias[i]; hdr_i = softplus(c_i + relu(X) * relu(S) + Y). Composite hdr "
-            "with the same alpha weights as the LDR colour. ldr_from_hdr = H2L-CC(mu_law(hdr_image / max)) closes the "
-            "loop in training only.",
-    "baseline": "raw colour r = the Gaussian's colour before the LDR activation (3DGS: SH(view direction)) is log "
-                "radiance ln E; hdr = exp(min(r, 30)); the LDR colour at exposure t seconds is CRF(r + ln t) per "
-                "channel i: h = relu(crf.hidden.weight[i] * x_i + crf.hidden.bias[i]); ldr_i = sigmoid(h @ "
-                "crf.out.weight[i] + crf.out.bias[i]). Composite both with the same alpha weights.",
-}
 
 
 @dataclass
@@ -96,7 +85,6 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
     with atomic_path(weights_path) as temporary:
         with open(temporary, "wb") as handle:  # np.savez on a path would append another .npz
             np.savez(handle, **arrays)
-    kind = "mono" if isinstance(method, MonoHDR) else "baseline" if isinstance(method, CrfBaseline) else None
     description = {
         "format": CONVERTERS_FORMAT,
         "version": CONVERTERS_VERSION,
@@ -105,8 +93,8 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
         "method": method.config.method,
         "method_config": asdict(method.config),
         "loss_kind": method.loss_kind,
-        "hdr_recipe": HDR_RECIPES[kind] if kind else f"the registered method {method.config.method!r}: apply its "
-                                                      "forward to the Gaussians' colours (see its documentation)",
+        "hdr_recipe": method.hdr_recipe or f"the registered method {method.config.method!r}: apply its forward to "
+                                           "the Gaussians' colours (see its documentation)",
         "reference_exposure_seconds": model.exposure.reference_exposure,
         "display_scale": model.exposure.display_scale,
         "display": "at exposure t seconds a display shows srgb(display_scale * hdr * t / reference_exposure_seconds)",
@@ -126,7 +114,9 @@ def load_converters(ply: Path) -> HdrMethod:
     description = json.loads(description_path.read_text())
     if description.get("format") != CONVERTERS_FORMAT or description.get("version") != CONVERTERS_VERSION:
         raise ValueError(f"{description_path} is not a version {CONVERTERS_VERSION} {CONVERTERS_FORMAT!r} file")
-    method = build_method(MethodConfig(**description["method_config"]), description["loss_kind"])
+    method_config = description["method_config"]  # options nested, or flat as written before methods had their own
+    method = build_method(config_from_dict(method_config_for(method_config["method"]), method_config),
+                          description["loss_kind"])
     with np.load(weights_path) as arrays:
         method.load_state_dict({name: torch.from_numpy(arrays[name]) for name in arrays.files})
     return method.eval()

@@ -16,16 +16,22 @@ def config_to_json(config: Any) -> str:
 # differs from its default; a field added with a new default behaviour needs it, so that a
 # checkpoint written before the field existed renders as it was trained.
 ABSENT_IN_SAVED_CONFIG = "absent_in_saved_config"
+# Field metadata key of a nested config whose fields older saved configs held in the parent's own
+# dict (before they moved into it): a saved config without the field rebuilds it from the parent's values.
+SAVED_IN_PARENT = "saved_in_parent"
 
 
 def config_from_dict(cls: type, values: dict) -> Any:
     """Rebuild a (nested) config dataclass from `dataclasses.asdict` output; a field the output
-    lacks (written before the field existed) takes its ABSENT_IN_SAVED_CONFIG value, else its default."""
+    lacks (written before the field existed) takes its ABSENT_IN_SAVED_CONFIG value, is rebuilt from
+    `values` when SAVED_IN_PARENT, else takes its default."""
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for field in dataclasses.fields(cls):
         if field.name in values:
             kwargs[field.name] = _coerce(hints[field.name], values[field.name])
+        elif field.metadata.get(SAVED_IN_PARENT) and dataclasses.is_dataclass(hints[field.name]):
+            kwargs[field.name] = config_from_dict(hints[field.name], values)
         elif ABSENT_IN_SAVED_CONFIG in field.metadata:
             kwargs[field.name] = field.metadata[ABSENT_IN_SAVED_CONFIG]
     return cls(**kwargs)

@@ -12,7 +12,8 @@ from mono_hdr_plugin.core.exposure import ExposureConfig
 from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.layouts import LAYOUTS
-from mono_hdr_plugin.methods import METHODS, MethodConfig
+from mono_hdr_plugin.core.configs import config_from_dict
+from mono_hdr_plugin.methods.base import METHODS, MethodConfig, method_config_for
 
 TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer")
 """What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
@@ -102,16 +103,27 @@ def hdr_supervised_views(num_views: int, ratio: str) -> list[bool]:
     return [i in chosen for i in range(num_views)]
 
 
-_TRAIN_CONFIGS: dict[type, type] = {}
+_TRAIN_CONFIGS: dict[tuple[type, type], type] = {}
 
 
-def train_config_for(backbone_config_class: type) -> type:
-    """A TrainConfig subclass whose `backbone` field has the backbone's own config type."""
-    if backbone_config_class not in _TRAIN_CONFIGS:
-        _TRAIN_CONFIGS[backbone_config_class] = dataclass(type(
+def train_config_for(backbone_config_class: type, method: str | None = None) -> type:
+    """A TrainConfig subclass whose `backbone` field has the backbone's own config type and whose
+    `hdr` field is the method's (`method_config_for`: its own flags; None: the default method)."""
+    method_config_class = method_config_for(MethodConfig.method if method is None else method)
+    key = (backbone_config_class, method_config_class)
+    if key not in _TRAIN_CONFIGS:
+        _TRAIN_CONFIGS[key] = dataclass(type(
             f"Train{backbone_config_class.__name__}", (TrainConfig,), {
-                "__annotations__": {"backbone": backbone_config_class},
+                "__annotations__": {"backbone": backbone_config_class,
+                                    "hdr": Annotated[method_config_class, tyro.conf.OmitArgPrefixes]},
                 "backbone": field(default_factory=backbone_config_class),
+                "hdr": field(default_factory=method_config_class),
                 "__doc__": TrainConfig.__doc__,
             }))
-    return _TRAIN_CONFIGS[backbone_config_class]
+    return _TRAIN_CONFIGS[key]
+
+
+def saved_train_config(backbone_config_class: type, values: dict) -> TrainConfig:
+    """A run config saved by `config_to_json`, rebuilt with its backbone's and its method's types
+    (a config saved before methods had options of their own included)."""
+    return config_from_dict(train_config_for(backbone_config_class, values["hdr"]["method"]), values)

@@ -19,7 +19,7 @@ from torch import nn
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import ViewExposures
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
+from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
 from mono_hdr_plugin.core.registry import get_backbone
 
 OWNERS = ("backbone", "method", "exposures")

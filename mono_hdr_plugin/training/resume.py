@@ -14,8 +14,8 @@ class ResumeMismatch(ValueError):
 RESUME_FREE_FLAGS = {"--max-steps", "--max-seconds", "--out", "--resume", "--overwrite", "--eval-every",
                      "--checkpoint-every", "--max-eval-views", "--save-renders", "--nan-patience", "--quiet",
                      "--seed", "--preset", "--viewer", "--viewer-port", "--viewer-host"}
-# Flags that make a resumed run a different experiment; the data flags count through the data itself.
-RESUME_IDENTITY_FLAGS = {"--method", "--hidden"}
+# The data flags count through the data itself; the flags that make a resumed run a different model
+# are the method's (HdrMethod.resume_identity_flags).
 DATA_FLAGS = {"--data", "--scene", "--layout", "--protocol", "--exposure-index", "--fixed-exposure", "--downscale",
               "--exposure-seed"}
 

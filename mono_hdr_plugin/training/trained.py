@@ -10,9 +10,8 @@ from pathlib import Path
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
 from mono_hdr_plugin.data.dataset import SceneData
-from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
-from mono_hdr_plugin.training.config import TrainConfig, train_config_for
+from mono_hdr_plugin.training.config import TrainConfig, saved_train_config
 from mono_hdr_plugin.training.frames import ExposureModel, calibrate
 from mono_hdr_plugin.training.pipeline import Pipeline
 
@@ -51,7 +50,7 @@ def load_trained_model(checkpoint: Path, scene: SceneData | None = None, data_pa
     payload = load_checkpoint(checkpoint)
     backbone_class = get_backbone(payload["backbone_name"])
     try:
-        config = config_from_dict(train_config_for(backbone_class.config_class), json.loads(payload["config"]))
+        config = saved_train_config(backbone_class.config_class, json.loads(payload["config"]))
     except (KeyError, TypeError, ValueError) as error:
         raise CheckpointError(f"{checkpoint}: its run settings cannot be read by this version ({error}); "
                               "retrain, or install the version that wrote it") from error

@@ -26,16 +26,16 @@ from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.outputs import OutputError, claim_output
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig, Targets
-from mono_hdr_plugin.core.configs import config_from_dict, config_to_json
+from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, Targets
+from mono_hdr_plugin.core.configs import config_to_json
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.training.config import TRAIN_OUTPUTS, TrainConfig, check_train_config, hdr_supervised_views, parse_view_ratio
+from mono_hdr_plugin.training.config import (TRAIN_OUTPUTS, TrainConfig, check_train_config, hdr_supervised_views,
+                                             parse_view_ratio, saved_train_config)
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.hooks import (CheckpointEvery, EvaluateEvery, ProgressBar, StopWhenInterrupted,
                                             TrainingHook, TrainingInterrupted, interrupt_requests)
 from mono_hdr_plugin.training.pipeline import Pipeline
-from mono_hdr_plugin.training.resume import (DATA_FLAGS, RESUME_IDENTITY_FLAGS, ResumeMismatch, changed_flags,
-                                             describe_change)
+from mono_hdr_plugin.training.resume import DATA_FLAGS, ResumeMismatch, changed_flags, describe_change
 
 console = Console(stderr=True)
 # Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
@@ -317,13 +317,14 @@ class Trainer:
             raise self._cannot_resume([f"the checkpoint holds a {payload.get('backbone_name')!r} model, not "
                                        f"{self.backbone_name!r}"])
         try:
-            saved = config_from_dict(type(self.config), json.loads(payload["config"]))
+            saved = saved_train_config(type(self.config.backbone), json.loads(payload["config"]))
         except (KeyError, TypeError, ValueError) as error:
             raise CheckpointError(f"{self.checkpoint_path()}: its run settings cannot be read ({error}); it was not "
                                   "written by this version: train into another --out") from error
         changes = changed_flags(saved, self.config)
+        identity = set(type(self.method).resume_identity_flags)
         reasons = [f"it was trained with {flag} {old}, not {new}" for flag, (old, new) in changes.items()
-                   if flag in RESUME_IDENTITY_FLAGS]
+                   if flag in identity]
         data = payload.get("data")
         data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
         if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
@@ -335,7 +336,7 @@ class Trainer:
         if reasons:
             raise self._cannot_resume(reasons)
         return [describe_change(flag, change) for flag, change in changes.items()
-                if flag not in RESUME_IDENTITY_FLAGS | DATA_FLAGS]
+                if flag not in identity | DATA_FLAGS]
 
     def _cannot_resume(self, reasons: list[str]) -> ResumeMismatch:
         return ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: {'; '.join(reasons)}. Pass the flags it "

@@ -23,7 +23,7 @@ from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
-from mono_hdr_plugin.methods import MethodConfig
+from mono_hdr_plugin.methods.base import MethodConfig
 from mono_hdr_plugin.core.metrics import psnr
 from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.config import train_config_for

@@ -200,10 +200,9 @@ class TestTraining:
         from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
-        config = train_config_for(type(voxel_backbone_config))(
+        config = train_config_for(type(voxel_backbone_config), method)(
             backbone=voxel_backbone_config, out=tmp_path / "run", quiet=True, max_steps=steps, save_renders=False,
             checkpoint_every=10**9, max_eval_views=2)
-        config.hdr.method = method
         config.exposure.learn_exposure = learn
         return Trainer(config, "voxel-grid", auto_exposed(voxel_scene, self.exposures, known))
 

@@ -83,7 +83,8 @@ def reference_terms(pipeline, camera, targets, config, kind: str, beta: float) -
         terms["h2l"] = beta * photometric(from_hdr, targets.ldr, kind)
     if config.method == "hdr-nerf":
         unit = method.crf(torch.zeros(1, 3))
-        terms["unit_exposure"] = config.unit_exposure_weight * ((unit - config.unit_exposure_value) ** 2).mean()
+        options = config.options
+        terms["unit_exposure"] = options.unit_exposure_weight * ((unit - options.unit_exposure_value) ** 2).mean()
     return terms
 
 
@@ -121,12 +122,16 @@ class StepProbe:
         return record, before, self.gradients
 
 
-def make_trainer(tmp_path, scene, backbone: str, ratio: str = "1:1", **method_options) -> Trainer:
-    config = train_config_for(type(BACKBONES[backbone]()))(backbone=BACKBONES[backbone](), out=tmp_path / "run",
-                                                           quiet=True, max_steps=10, save_renders=False,
-                                                           checkpoint_every=10**9, hdr_view_ratio=ratio)
-    for key, value in method_options.items():
+def make_trainer(tmp_path, scene, backbone: str, ratio: str = "1:1", method: str = "mono",
+                 options: dict | None = None, **method_settings) -> Trainer:
+    """A trainer of `method` with MethodConfig fields `method_settings` and the method's own `options`."""
+    config = train_config_for(type(BACKBONES[backbone]()), method)(
+        backbone=BACKBONES[backbone](), out=tmp_path / "run", quiet=True, max_steps=10, save_renders=False,
+        checkpoint_every=10**9, hdr_view_ratio=ratio)
+    for key, value in method_settings.items():
         setattr(config.hdr, key, value)
+    for key, value in (options or {}).items():
+        setattr(config.hdr.options, key, value)
     return Trainer(config, backbone, scene)
 
 
@@ -196,8 +201,8 @@ class TestEveryLossSwitch:
         assert trainer.method.beta == 0.7 and trainer.method.loss_kind == "l1_dssim"
 
     def test_hdr_nerf_unit_exposure_weight(self, tmp_path, voxel_scene):
-        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", method="hdr-nerf", unit_exposure_weight=3.0,
-                               unit_exposure_value=0.73)
+        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", method="hdr-nerf",
+                               options={"unit_exposure_weight": 3.0, "unit_exposure_value": 0.73})
         check_step(StepProbe(trainer), "voxel-grid")
 
 
@@ -266,12 +271,15 @@ def test_defaults_are_the_papers():
     converters 1 -> 128 -> ... wide, their learning rate 5e-4; HDR-NeRF's unit exposure 0.5 at weight 0.5
     and a 500-step CRF warm-up."""
     from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
-    from mono_hdr_plugin.methods import DEFAULT_BETA, MethodConfig
+    from mono_hdr_plugin.methods.base import DEFAULT_BETA, MethodConfig
+    from mono_hdr_plugin.methods.hdr_nerf import HdrNerfOptions
 
     config = MethodConfig()
     assert (config.method, config.alpha, config.beta, config.dssim_weight, config.hidden) == ("mono", 0.6, None, 0.2,
                                                                                              128)
     assert (config.use_ldr_loss, config.use_hdr_loss, config.use_h2l_loss, config.loss) == (True, True, True, "auto")
     assert config.converter_lr is None and OFFICIAL_CONVERTER_LR == 5e-4  # None: the backbone's rate
-    assert (config.unit_exposure_weight, config.unit_exposure_value, config.crf_warmup_steps) == (0.5, 0.5, 500)
+    options = MethodConfig(method="hdr-nerf").options
+    assert type(options) is HdrNerfOptions and options == HdrNerfOptions()
+    assert (options.unit_exposure_weight, options.unit_exposure_value, options.crf_warmup_steps) == (0.5, 0.5, 500)
     assert DEFAULT_BETA == {"l1_dssim": 0.05, "mse": 0.01}

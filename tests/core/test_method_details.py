@@ -11,7 +11,8 @@ from mono_hdr_plugin.core.backbone import LdrFeatures
 from mono_hdr_plugin.core.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear, PlainH2L,
                                         PlainL2H)
 from mono_hdr_plugin.core.losses import photometric_loss
-from mono_hdr_plugin.methods import HdrNerfBaseline, MethodConfig, Targets, build_method
+from mono_hdr_plugin.methods.base import MethodConfig, Targets, build_method
+from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
 from mono_hdr_plugin.core.metrics import ssim
 
 
@@ -83,7 +84,7 @@ class TestBaselineDetails:
 
     @pytest.mark.parametrize("warmup,step,factor", [(0, 0, 1.0), (1, 0, 1.0), (4, 0, 0.25), (4, 2, 0.75), (4, 3, 1.0)])
     def test_crf_warmup(self, warmup, step, factor):
-        method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", crf_warmup_steps=warmup), "mse")
+        method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", options=HdrNerfOptions(crf_warmup_steps=warmup)), "mse")
         assert method.learning_rate("method", step, 2.0) == pytest.approx(2.0 * factor)
 
 

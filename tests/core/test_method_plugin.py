@@ -10,10 +10,13 @@ import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on s
 import register_method  # registers "tone-curve"
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
+from mono_hdr_plugin.apps import cli
 from mono_hdr_plugin.apps.cli import main
-from mono_hdr_plugin.methods import METHODS, MethodConfig, build_method
+from mono_hdr_plugin.core.validation import FlagError
+from mono_hdr_plugin.methods.base import METHODS, MethodConfig, build_method
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.trainer import Trainer
+from mono_hdr_plugin.training.resume import ResumeMismatch
+from mono_hdr_plugin.training.trainer import Trainer, build_trainer
 
 TINY_BACKBONES = {
     "gs": lambda: GaussianConfig(random_init_points=300),
@@ -53,14 +56,63 @@ class TestToneCurve:
 class TestTrainsOnEveryBackbone:
     def test_two_steps_move_the_curve(self, tmp_path, voxel_scene, backbone):
         backbone_config = TINY_BACKBONES[backbone]()
-        config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                         save_renders=False, checkpoint_every=10**9, max_steps=2)
-        config.hdr.method = "tone-curve"
+        config = train_config_for(type(backbone_config), "tone-curve")(
+            backbone=backbone_config, out=tmp_path / "run", quiet=True, save_renders=False, checkpoint_every=10**9,
+            max_steps=2)
         trainer = Trainer(config, backbone, voxel_scene)
         before = trainer.method.raw_rises.detach().clone()
         records = [trainer.train_step() for _ in range(2)]
         assert all(math.isfinite(r["loss"]) and not r["skipped"] and "hdr" in r for r in records)
         assert not torch.equal(before, trainer.method.raw_rises)
+
+
+class TestItsOwnFlag:
+    """--knots is declared by the example alone (ToneCurveOptions) and reaches the method through the CLI."""
+
+    def test_the_flag_reaches_the_method(self, monkeypatch):
+        import mono_hdr_plugin.training.trainer as trainer_module
+
+        parsed = []
+        monkeypatch.setattr(trainer_module, "run_training", lambda config, backbone: parsed.append(config))
+        monkeypatch.setattr(cli, "print_metrics", lambda *args: None)
+        cli.command_train(["voxel-grid", "--method", "tone-curve", "--knots", "5", "--scene", "demo"])
+        assert parsed[0].hdr.options == register_method.ToneCurveOptions(knots=5)
+        method = build_method(parsed[0].hdr, "mse")
+        assert method.knots == 5 and method.raw_rises.shape == (4,)
+
+    def test_help_of_the_method_lists_it(self, capsys):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train", "voxel-grid", "--method", "tone-curve", "--help"])
+        assert exit_info.value.code == 0
+        help_text = capsys.readouterr().out
+        assert "--knots" in help_text and "Knots of the piecewise-linear" in help_text
+        with pytest.raises(SystemExit):
+            main(["train", "voxel-grid", "--help"])
+        assert "--knots" not in capsys.readouterr().out
+
+    def test_without_the_method_the_flag_is_refused_naming_it(self, tmp_path):
+        with pytest.raises(FlagError, match="^--knots is a flag of --method tone-curve, not of --method mono"):
+            main(["train", "voxel-grid", "--knots", "5", "--scene", "demo", "--out", str(tmp_path / "run")])
+        with pytest.raises(FlagError, match="--knots must be an integer >= 2, got 1"):
+            main(["train", "voxel-grid", "--method", "tone-curve", "--knots", "1", "--scene", "demo", "--out",
+                  str(tmp_path / "run")])
+
+    def test_a_resume_keeps_the_knots_it_declares(self, tmp_path, voxel_scene):
+        def trainer(knots: int, resume: bool) -> Trainer:
+            config = train_config_for(register_backbone.VoxelGridConfig, "tone-curve")(
+                backbone=TINY_BACKBONES["voxel-grid"](), out=tmp_path / "run", quiet=True, save_renders=False,
+                max_steps=1, resume=resume)
+            config.hdr.options.knots = knots
+            return build_trainer(config, "voxel-grid", voxel_scene)
+
+        assert "--knots" in register_method.GlobalToneCurve.resume_identity_flags
+        trainer(8, resume=False).save()
+        with pytest.raises(ResumeMismatch, match="it was trained with --knots 8, not 5"):
+            trainer(5, resume=True)
+        assert trainer(8, resume=True).method.knots == 8
+
+    def test_its_export_recipe_is_its_own(self):
+        assert "knots" in register_method.GlobalToneCurve.hdr_recipe
 
 
 class TestCommandLine:

@@ -6,8 +6,10 @@ import pytest
 import torch
 
 from mono_hdr_plugin.core.backbone import LdrFeatures
-from mono_hdr_plugin.methods import (HdrGsBaseline, HdrNerfBaseline, MethodConfig, MethodOutput, MonoHDR, Targets,
-                                     build_method, method_names)
+from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method, method_names
+from mono_hdr_plugin.methods.mono import MonoHDR
+from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
+from mono_hdr_plugin.methods.hdr_gs import HdrGsBaseline
 from mono_hdr_plugin.core.registry import RegistryError
 from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.core.validation import FlagError, check_flags
@@ -155,17 +157,18 @@ class TestBaselines:
         torch.testing.assert_close(terms["unit_exposure"], 0.5 * ((unit - 0.5) ** 2).mean())
 
     def test_crf_warmup_ramps_learning_rate(self):
-        method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", crf_warmup_steps=100), "mse")
+        method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", options=HdrNerfOptions(crf_warmup_steps=100)), "mse")
         assert method.learning_rate("method", 0, 1.0) == pytest.approx(0.01)
         assert method.learning_rate("method", 500, 1.0) == 1.0
-        assert HdrGsBaseline(MethodConfig(method="hdr-gs", crf_warmup_steps=100), "l1_dssim").learning_rate(
+        assert HdrGsBaseline(MethodConfig(method="hdr-gs"), "l1_dssim").learning_rate(
             "method", 0, 1.0) == 1.0  # HDR-GS's recipe has no warm-up
+        assert "--crf-warmup-steps" not in HdrGsBaseline.own_flags()
 
     def test_huge_log_radiance_stays_finite(self):
         features, _, _ = fake_features()
         features.raw_colors.data.fill_(1e4)
-        for cls in (HdrNerfBaseline, HdrGsBaseline):
-            out = cls(MethodConfig(), "mse")(features, 1.0)
+        for cls, name in ((HdrNerfBaseline, "hdr-nerf"), (HdrGsBaseline, "hdr-gs")):
+            out = cls(MethodConfig(method=name), "mse")(features, 1.0)
             assert torch.isfinite(out.hdr).all() and torch.isfinite(out.ldr).all()
 
 
@@ -196,7 +199,8 @@ class TestMethodFlags:
         ("unit_exposure_value", 0.999, True), ("unit_exposure_value", 1.0, False),
         ("unit_exposure_value", 0.0, False), ("unit_exposure_value", 1.5, False)])
     def test_rules_at_their_bounds(self, name, value, accepted):
-        config = MethodConfig(**{name: value})
+        config = (MethodConfig(method="hdr-nerf", options=HdrNerfOptions(**{name: value})) if name.startswith("unit_")
+                  else MethodConfig(**{name: value}))
         if accepted:
             check_flags(config)
         else:

@@ -43,9 +43,8 @@ def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
     assert torch.get_num_threads() == 2  # tests/conftest.py: the pinned runs used 2 threads
     scene = register_backbone.make_capture(size=16, views=8)
     backbone_config = CONFIGS[backbone]()
-    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                     max_steps=200, save_renders=False, checkpoint_every=10**9,
-                                                     seed=3)
-    config.hdr.method = method
+    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
+                                                             quiet=True, max_steps=200, save_renders=False,
+                                                             checkpoint_every=10**9, seed=3)
     metrics = Trainer(config, backbone, scene).train()
     assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=1e-6)

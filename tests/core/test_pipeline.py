@@ -7,13 +7,14 @@ import torch
 
 from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
 from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
-from mono_hdr_plugin.methods import HdrMethod, MethodConfig, build_method
+from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, build_method
+from mono_hdr_plugin.methods.hdr_nerf import HdrNerfOptions
 from mono_hdr_plugin.training.pipeline import Pipeline
 
 
-def pipeline_for(method: str = "mono", **method_options) -> Pipeline:
-    pipeline = Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method, **method_options),
-                               known_scene().scene_info())
+def pipeline_for(method: str = "mono", options: object = None, **method_settings) -> Pipeline:
+    pipeline = Pipeline.create("known-render", KnownRenderConfig(),
+                               MethodConfig(method=method, options=options, **method_settings), known_scene().scene_info())
     zero_method(pipeline)
     return pipeline
 
@@ -41,7 +42,7 @@ class TestParameterGroups:
             pipeline.parameter_groups()
 
     def test_learning_rate_follows_the_owner_schedule(self):
-        pipeline = pipeline_for("hdr-nerf", crf_warmup_steps=10)
+        pipeline = pipeline_for("hdr-nerf", HdrNerfOptions(crf_warmup_steps=10))
         groups = pipeline.parameter_groups()
         for group in groups:
             group["base_lr"] = 2.0

@@ -11,7 +11,7 @@ from mono_hdr_plugin.core import registry
 from mono_hdr_plugin.core.backbone import Backbone
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.data.sources import SCENE_SOURCES
-from mono_hdr_plugin.methods import METHODS
+from mono_hdr_plugin.methods.base import METHODS
 from mono_hdr_plugin.core.registry import BACKBONES, BENCHMARKS, PluginRegistry, RegistryError
 
 

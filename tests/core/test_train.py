@@ -8,7 +8,7 @@ import torch
 
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.frames import calibrate
 from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
@@ -16,9 +16,9 @@ from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 
-def make_config(tmp_path, backbone_config, **overrides):
-    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                     save_renders=False, checkpoint_every=10**9)
+def make_config(tmp_path, backbone_config, method: str = "mono", **overrides):
+    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
+                                                             quiet=True, save_renders=False, checkpoint_every=10**9)
     for key, value in overrides.items():
         if hasattr(config.hdr, key):
             setattr(config.hdr, key, value)

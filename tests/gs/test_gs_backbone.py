@@ -12,7 +12,8 @@ from backbones.gs.sh import visible_colors
 from gs_scenes import make_camera
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import look_at
-from mono_hdr_plugin.methods import MethodConfig, MonoHDR
+from mono_hdr_plugin.methods.base import MethodConfig
+from mono_hdr_plugin.methods.mono import MonoHDR
 
 
 def make_scene(points: int | None = 300, seed: int = 0) -> SceneInfo:

@@ -8,16 +8,15 @@ import torch
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
-from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def gs_trainer(tmp_path, scene, method: str = "mono", max_steps: int = 2, **backbone_overrides) -> Trainer:
     backbone = GaussianConfig(random_init_points=500, **backbone_overrides)
-    config = train_config_for(GaussianConfig)(backbone=backbone, out=tmp_path / "run", quiet=True, save_renders=False,
-                                              checkpoint_every=10**9, max_steps=max_steps)
-    config.hdr.method = method
+    config = train_config_for(GaussianConfig, method)(backbone=backbone, out=tmp_path / "run", quiet=True,
+                                                      save_renders=False, checkpoint_every=10**9, max_steps=max_steps)
     return Trainer(config, "gs", scene)
 
 

@@ -91,10 +91,9 @@ def backbone_config(backbone: str, **overrides):
 
 def make_trainer(tmp_path: Path, backbone: str, scene: SceneData, max_steps: int, method: str = "mono",
                  backbone_overrides: dict | None = None, **overrides) -> Trainer:
-    config = train_config_for(type(backbone_config(backbone)))(
+    config = train_config_for(type(backbone_config(backbone)), method)(
         backbone=backbone_config(backbone, **(backbone_overrides or {})), out=tmp_path / "run",
         quiet=True, save_renders=False, checkpoint_every=10**9, max_steps=max_steps)
-    config.hdr.method = method
     config.hdr.hidden = 32  # converters keep their structure at a quarter of the cost
     for key, value in overrides.items():
         target = config.hdr if hasattr(config.hdr, key) else config

@@ -24,11 +24,13 @@ from mono_hdr_plugin.core.validation import FlagError, check_flags, rules_of
 from mono_hdr_plugin.apps.viewer.command import ViewConfig
 
 BUILT_IN = ("gs", "nerf", "voxel-grid")
+TRAIN_CONFIGS = (*BUILT_IN, "hdr-nerf")
 
 
 def default_configs() -> dict[str, object]:
     configs = {name: train_config_for(BACKBONES.get(name).config_class)(backbone=BACKBONES.get(name).config_class())
                for name in BUILT_IN}
+    configs["hdr-nerf"] = train_config_for(register_backbone.VoxelGridConfig, "hdr-nerf")()  # a method's own flags
     configs.update(eval=EvalConfig(checkpoint="x.pt"), render=RenderConfig(checkpoint="x.pt"), synth=SynthConfig(),
                    view=ViewConfig(checkpoint="x.pt"), export=ExportConfig(checkpoint="x.pt"),
                    bench_curves=BenchCurvesConfig(), bench_paper=BenchPaperConfig(), bench_raster=BenchRasterConfig())
@@ -74,7 +76,7 @@ def owner_of(config, path):
 
 
 def check(name, config):
-    return check_train_config(config) if name in BUILT_IN else check_flags(config)
+    return check_train_config(config) if name in TRAIN_CONFIGS else check_flags(config)
 
 
 @pytest.mark.parametrize("name,path,integer", list(numeric_leaves()))
@@ -123,6 +125,8 @@ def test_no_rule_names_a_field_that_is_not_there():
     (["train", "voxel-grid", "--alpha", "nan"], r"--alpha must be a number >= 0, got nan"),
     (["train", "voxel-grid", "--beta", "-0.1"], r"--beta must be a number >= 0, got -0.1"),
     (["train", "voxel-grid", "--converter-lr", "-1e400"], "--converter-lr must be a positive number, got -inf"),
+    (["train", "voxel-grid", "--method", "hdr-nerf", "--unit-exposure-value", "1"],
+     r"--unit-exposure-value must be a number in \(0, 1\), got 1.0"),
     (["train", "voxel-grid", "--fixed-exposure", "0"], "--fixed-exposure must be a positive number, got 0.0"),
     (["train", "voxel-grid", "--max-seconds", "nan"], "--max-seconds must be a positive number, got nan"),
     (["render", "--checkpoint", "x.pt", "--exposures", "1", "nan"], "--exposures must be a positive number, got nan"),

@@ -18,7 +18,7 @@ from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, write_exr
-from mono_hdr_plugin.methods import MethodOutput
+from mono_hdr_plugin.methods.base import MethodOutput
 from mono_hdr_plugin.core.metrics import hdr_metrics, normalise_hdr, psnr
 from mono_hdr_plugin.training.evaluation import save_view_renders
 

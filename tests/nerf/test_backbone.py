@@ -419,7 +419,7 @@ class TestRenderMemoryBound:
     def test_every_field_call_of_a_full_render_is_bounded_by_the_chunk(self, scene):
         """Memory per piece is bounded by construction: Pipeline.render hands the backbone at most
         render_chunk rays, and the field sees at most render_chunk x max_samples_per_ray samples."""
-        from mono_hdr_plugin.methods import MethodConfig
+        from mono_hdr_plugin.methods.base import MethodConfig
         from mono_hdr_plugin.training.pipeline import Pipeline
 
         pipeline = Pipeline.create("nerf", tiny_config("cpu", render_chunk=50), MethodConfig(), scene).eval()

@@ -8,17 +8,16 @@ import torch
 from backbones.nerf import NerfBackbone, NerfConfig
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.methods import method_names
+from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 from nerf_scenes import tiny_config
 
 
 def nerf_trainer(tmp_path, scene, field: str, method: str) -> Trainer:
-    config = train_config_for(type(tiny_config(field)))(
+    config = train_config_for(type(tiny_config(field)), method)(
         backbone=tiny_config(field), out=tmp_path / "run", quiet=True, save_renders=False,
         checkpoint_every=10**9, max_steps=2)
-    config.hdr.method = method
     return Trainer(config, "nerf", scene)
 
 

@@ -11,10 +11,9 @@ from mono_hdr_plugin.training.trainer import Trainer
 def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono",
                 steps: int = 20) -> tuple[Trainer, TrainedModel]:
     """A Trainer after `steps` steps (checkpoint written) and the same model as the viewer loads it."""
-    config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                     max_steps=steps, max_eval_views=1, checkpoint_every=10**9,
-                                                     save_renders=False)
-    config.hdr.method = method
+    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
+                                                             quiet=True, max_steps=steps, max_eval_views=1,
+                                                             checkpoint_every=10**9, save_renders=False)
     trainer = Trainer(config, backbone_name, scene)
     trainer.train()
     trainer.pipeline.eval()

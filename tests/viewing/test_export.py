@@ -1,6 +1,7 @@
 """Exports: the standard 3DGS PLY with its converters, and NeRF point clouds, read back by the
 project's own loaders."""
 
+import hashlib
 import json
 
 import numpy as np
@@ -20,6 +21,11 @@ from mono_hdr_plugin.training.pipeline import Pipeline
 # The vertex properties of a degree-3 3DGS PLY, in the order the reference implementation writes them.
 STANDARD_3DGS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
                  + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+# sha256 of the HDR recipe each method's export has written since the recipes were written (the text
+# now lives in the method: MonoHDR.hdr_recipe, CrfBaseline.hdr_recipe).
+RECIPE_SHA256 = {"mono": "df62fc5e88797c1128601329d77cfb8e9025b20649dc8eb6c50fd48b9ce5211c",
+                 "hdr-gs": "bcf7749a32dbb1774664068586e636b6f2c6a27cf1a12721771de97596385eed"}
 
 
 @pytest.fixture(scope="module", params=["mono", "hdr-gs"])
@@ -51,6 +57,25 @@ class TestSplatExport:
         assert info["display_scale"] == pytest.approx(gaussians.exposure.display_scale)
         with np.load(weights) as arrays:
             assert {name: list(arrays[name].shape) for name in arrays.files} == info["arrays"]
+
+    def test_the_recipe_is_the_methods_own_and_unchanged(self, gaussians, tmp_path):
+        path = tmp_path / "model.ply"
+        export_splats(gaussians, path)
+        recipe = json.loads(converters_paths(path)[1].read_text())["hdr_recipe"]
+        assert recipe == gaussians.method.hdr_recipe
+        assert hashlib.sha256(recipe.encode()).hexdigest() == RECIPE_SHA256[gaussians.method.config.method]
+
+    def test_a_description_written_before_method_options_loads(self, gaussians, tmp_path):
+        """Before methods had options of their own, method_config held HDR-NeRF's flags flat, for every method."""
+        path = tmp_path / "model.ply"
+        export_splats(gaussians, path)
+        description = converters_paths(path)[1]
+        info = json.loads(description.read_text())
+        old = {key: value for key, value in info["method_config"].items() if key != "options"}
+        old.update(unit_exposure_weight=0.5, unit_exposure_value=0.5, crf_warmup_steps=500)
+        description.write_text(json.dumps({**info, "method_config": old}))
+        method = load_converters(path)
+        assert type(method) is type(gaussians.method) and method.config == gaussians.method.config
 
     def test_converters_must_be_beside_the_ply(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="model.converters.npz"):

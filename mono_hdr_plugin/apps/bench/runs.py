@@ -28,7 +28,7 @@ from rich.progress import Progress
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import write_json
-from mono_hdr_plugin.methods import MethodConfig
+from mono_hdr_plugin.methods.base import MethodConfig
 from mono_hdr_plugin.core.registry import BACKBONES, get_backbone
 from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, FlagError, at_least, check_flags, one_of
 from mono_hdr_plugin.training.config import train_config_for
