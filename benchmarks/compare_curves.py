@@ -32,8 +32,13 @@ def comparison_table(runs: list[dict], names: list[str]) -> list[str]:
         for run in runs:
             row = run[key]
             final = row["final"]
-            cells += [fmt(final["hdr_psnr"]), fmt(final["hdr_psnr_gt_max"]), fmt(final["ldr_psnr"]),
-                      str(final["steps"]), f"{1000 * row['mean_step_seconds']:.1f}"]
+            cells += [
+                fmt(final["hdr_psnr"]),
+                fmt(final["hdr_psnr_gt_max"]),
+                fmt(final["ldr_psnr"]),
+                str(final["steps"]),
+                f"{1000 * row['mean_step_seconds']:.1f}",
+            ]
         before, after = runs[0][key]["final"], runs[1][key]["final"]
         cells += [f"{after['hdr_psnr'] - before['hdr_psnr']:+.2f}", f"{after['ldr_psnr'] - before['ldr_psnr']:+.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
@@ -52,8 +57,11 @@ def main() -> None:
         raise SystemExit(f"{args.before} and {args.after} share no finished row (scene, backbone / method)")
     args.out.mkdir(parents=True, exist_ok=True)
     lines = comparison_table(runs, args.names)
-    lines += ["", f"Made by `python benchmarks/compare_curves.py {args.before} {args.after} --names "
-                  f"{' '.join(repr(n) for n in args.names)} --out {args.out}`."]
+    lines += [
+        "",
+        f"Made by `python benchmarks/compare_curves.py {args.before} {args.after} --names "
+        f"{' '.join(repr(n) for n in args.names)} --out {args.out}`.",
+    ]
     (args.out / "compare.md").write_text("\n".join(lines) + "\n")
     relabelled = []
     for name, run in zip(args.names, runs):

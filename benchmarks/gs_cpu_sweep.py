@@ -20,8 +20,8 @@ import torch
 from backbones.gs import GaussianBackbone
 from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import set_override
-from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
@@ -34,13 +34,30 @@ def configured(preset: str, overrides: tuple[tuple[str, object], ...]):
     return config
 
 
-def run(scene_name: str, method: str, preset: str, overrides: tuple, steps: int, eval_every: int, eval_views: int,
-        out: Path, seed: int = 0) -> dict:
+def run(
+    scene_name: str,
+    method: str,
+    preset: str,
+    overrides: tuple,
+    steps: int,
+    eval_every: int,
+    eval_views: int,
+    out: Path,
+    seed: int = 0,
+) -> dict:
     scene = load_scene(DataConfig(scene=scene_name))
     backbone = configured(preset, overrides)
-    config = train_config_for(type(backbone), method)(backbone=backbone, preset=preset, out=out, quiet=True,
-                                                      max_steps=steps, save_renders=False, checkpoint_every=10**9,
-                                                      max_eval_views=eval_views, seed=seed)
+    config = train_config_for(type(backbone), method)(
+        backbone=backbone,
+        preset=preset,
+        out=out,
+        quiet=True,
+        max_steps=steps,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_eval_views=eval_views,
+        seed=seed,
+    )
     trainer = Trainer(config, "gs", scene)
     curve, cpu = [], 0.0
     while trainer.step < steps:
@@ -49,11 +66,23 @@ def run(scene_name: str, method: str, preset: str, overrides: tuple, steps: int,
         cpu += time.process_time() - started
         if trainer.step % eval_every == 0 or trainer.step == steps:
             metrics = trainer.evaluate()
-            curve.append({"steps": trainer.step, "cpu_seconds": cpu, "gaussians": trainer.backbone.num_gaussians,
-                          **{k: metrics[k] for k in ("hdr_psnr", "hdr_psnr_gt_max", "hdr_ssim", "ldr_psnr", "ldr_ssim")}})
+            curve.append(
+                {
+                    "steps": trainer.step,
+                    "cpu_seconds": cpu,
+                    "gaussians": trainer.backbone.num_gaussians,
+                    **{k: metrics[k] for k in ("hdr_psnr", "hdr_psnr_gt_max", "hdr_ssim", "ldr_psnr", "ldr_ssim")},
+                }
+            )
             print(scene_name, method, curve[-1], flush=True)
-    return {"scene": scene_name, "method": method, "preset": preset, "overrides": dict(overrides), "curve": curve,
-            "cpu_ms_per_step": 1000 * cpu / steps}
+    return {
+        "scene": scene_name,
+        "method": method,
+        "preset": preset,
+        "overrides": dict(overrides),
+        "curve": curve,
+        "cpu_ms_per_step": 1000 * cpu / steps,
+    }
 
 
 def main() -> None:
@@ -75,10 +104,22 @@ def main() -> None:
         overrides = args_of.variant_overrides(name)
         for scene in args.scenes:
             for method in args.methods:
-                record = run(scene, method, args.preset, overrides, args.steps, args.eval_every, args.eval_views,
-                             args.out / "runs")
-                record.update(variant=name, label=args.label, load_average=os.getloadavg(),
-                              date=time.strftime("%Y-%m-%d %H:%M:%S"))
+                record = run(
+                    scene,
+                    method,
+                    args.preset,
+                    overrides,
+                    args.steps,
+                    args.eval_every,
+                    args.eval_views,
+                    args.out / "runs",
+                )
+                record.update(
+                    variant=name,
+                    label=args.label,
+                    load_average=os.getloadavg(),
+                    date=time.strftime("%Y-%m-%d %H:%M:%S"),
+                )
                 results["runs"].append(record)
                 write_json(results_path, results)
 

@@ -19,10 +19,10 @@ from backbones.gs import GAUSSIAN_PARAMETERS, GaussianBackbone
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.apps.bench import script_args as args_of
-from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.core.losses import l1_dssim_loss
 from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -40,8 +40,14 @@ def cpu_median(function, repeats: int) -> float:
 def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str, float]], dict]:
     scene = load_scene(DataConfig(scene=scene_name))
     preset = GaussianBackbone.presets()["cpu"]
-    config = train_config_for(type(preset))(backbone=preset, out=Path("/tmp/gs_step_profile"), quiet=True,
-                                            save_renders=False, checkpoint_every=10**9, max_steps=10 * warmup)
+    config = train_config_for(type(preset))(
+        backbone=preset,
+        out=Path("/tmp/gs_step_profile"),
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_steps=10 * warmup,
+    )
     trainer = Trainer(config, "gs", scene)
     for _ in range(warmup):
         trainer.train_step()
@@ -56,20 +62,29 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
 
     def projection():
         zero()
-        p = project_gaussians(g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]),
-                              camera)
+        p = project_gaussians(
+            g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]), camera
+        )
         (p.means2d.sum() + p.conics.sum() + p.depths.sum()).backward()
 
-    projected = project_gaussians(g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]),
-                                  camera)
+    projected = project_gaussians(
+        g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]), camera
+    )
     index = projected.index
 
     def colours():
         zero()
-        visible_colors(backbone.active_sh_degree, g["sh_dc"], g["sh_rest"], g["means"], index, camera.center).sum().backward()
+        visible_colors(
+            backbone.active_sh_degree, g["sh_dc"], g["sh_rest"], g["means"], index, camera.center
+        ).sum().backward()
 
-    detached = project_gaussians(g["means"].detach(), g["quats"].detach(), torch.exp(g["log_scales"].detach()),
-                                 torch.sigmoid(g["opacity_logits"].detach()), camera)
+    detached = project_gaussians(
+        g["means"].detach(),
+        g["quats"].detach(),
+        torch.exp(g["log_scales"].detach()),
+        torch.sigmoid(g["opacity_logits"].detach()),
+        camera,
+    )
     values = torch.rand(index.numel(), 6, requires_grad=True)
     weights = torch.rand(camera.height, camera.width, 6)
 
@@ -91,8 +106,11 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         zero()
         hdr_image.grad = None
         ldr = torch.rand_like(target).requires_grad_()
-        loss = (l1_dssim_loss(ldr, target) + l1_dssim_loss(normalise_hdr(hdr_image), normalise_hdr(view.hdr))
-                + l1_dssim_loss(method.h2l(normalise_hdr(hdr_image)), target))
+        loss = (
+            l1_dssim_loss(ldr, target)
+            + l1_dssim_loss(normalise_hdr(hdr_image), normalise_hdr(view.hdr))
+            + l1_dssim_loss(method.h2l(normalise_hdr(hdr_image)), target)
+        )
         loss.backward()
 
     def adam():
@@ -105,31 +123,45 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         backbone.config.strategy.add_position_noise(backbone, 1e-5)
         backbone.regularisation()
 
-    parts = [("projection (C++ kernel), forward + backward", projection),
-             ("SH colours of the visible Gaussians (C++), forward + backward", colours),
-             ("compositing 6 channels LDR + HDR (C++), forward + backward", compositing),
-             ("L2H-CC on the visible Gaussians, forward + backward", l2h),
-             ("H2L-CC and the three L1 + D-SSIM losses, forward + backward", h2l_and_losses),
-             ("Adam (fused), all parameters", adam),
-             ("MCMC position noise and regularisers", strategy)]
+    parts = [
+        ("projection (C++ kernel), forward + backward", projection),
+        ("SH colours of the visible Gaussians (C++), forward + backward", colours),
+        ("compositing 6 channels LDR + HDR (C++), forward + backward", compositing),
+        ("L2H-CC on the visible Gaussians, forward + backward", l2h),
+        ("H2L-CC and the three L1 + D-SSIM losses, forward + backward", h2l_and_losses),
+        ("Adam (fused), all parameters", adam),
+        ("MCMC position noise and regularisers", strategy),
+    ]
     seconds = [(name, cpu_median(function, repeats)) for name, function in parts]
     step = cpu_median(trainer.train_step, repeats)
-    facts = {"scene": scene_name, "gaussians": backbone.num_gaussians, "visible": int(index.numel()),
-             "pixels": camera.width * camera.height, "step": step, "threads": torch.get_num_threads(),
-             "load": os.getloadavg()[0]}
+    facts = {
+        "scene": scene_name,
+        "gaussians": backbone.num_gaussians,
+        "visible": int(index.numel()),
+        "pixels": camera.width * camera.height,
+        "step": step,
+        "threads": torch.get_num_threads(),
+        "load": os.getloadavg()[0],
+    }
     return seconds, facts
 
 
 def table(seconds: list[tuple[str, float]], facts: dict) -> str:
-    lines = [f"Scene `{facts['scene']}`, {facts['pixels']} pixels, {facts['gaussians']:,} Gaussians of which "
-             f"{facts['visible']:,} visible in the view; {facts['threads']} torch thread(s), median CPU time; "
-             f"1-minute load average {facts['load']:.1f} when measured.", "",
-             "| part of a step | ms | share of the step |", "|---|---|---|"]
+    lines = [
+        f"Scene `{facts['scene']}`, {facts['pixels']} pixels, {facts['gaussians']:,} Gaussians of which "
+        f"{facts['visible']:,} visible in the view; {facts['threads']} torch thread(s), median CPU time; "
+        f"1-minute load average {facts['load']:.1f} when measured.",
+        "",
+        "| part of a step | ms | share of the step |",
+        "|---|---|---|",
+    ]
     for name, value in seconds:
         lines.append(f"| {name} | {1000 * value:.1f} | {100 * value / facts['step']:.0f} % |")
     rest = facts["step"] - sum(value for _, value in seconds)
-    lines.append(f"| everything else (Python, autograd bookkeeping, view loading, logging) | {1000 * rest:.1f} | "
-                 f"{100 * rest / facts['step']:.0f} % |")
+    lines.append(
+        f"| everything else (Python, autograd bookkeeping, view loading, logging) | {1000 * rest:.1f} | "
+        f"{100 * rest / facts['step']:.0f} % |"
+    )
     lines.append(f"| **whole training step** | **{1000 * facts['step']:.1f}** | 100 % |")
     return "\n".join(lines) + "\n"
 

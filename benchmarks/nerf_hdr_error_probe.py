@@ -28,8 +28,8 @@ import torch
 
 from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, build_run, cached_scene
-from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.core.metrics import mu_law, psnr, tone_mapped_pair
+from mono_hdr_plugin.data.io import write_png
 
 ROOM_FRACTION_OF_PEAK = 0.01
 
@@ -38,17 +38,23 @@ def error_split(pred_hdr: torch.Tensor, gt_hdr: torch.Tensor) -> dict[str, float
     """The figures of the module docstring for one view."""
     pred_hdr, gt_hdr = pred_hdr.double(), gt_hdr.double()
     pred, gt = tone_mapped_pair(pred_hdr, gt_hdr, "own_max")
-    room = (gt_hdr.max(dim=-1).values < ROOM_FRACTION_OF_PEAK * gt_hdr.max())
+    room = gt_hdr.max(dim=-1).values < ROOM_FRACTION_OF_PEAK * gt_hdr.max()
     pred_linear = (pred_hdr / pred_hdr.max().clamp_min(1e-12)).clamp(0, 1)
     gt_linear = gt_hdr / gt_hdr.max()
     pred_room, gt_room = pred_linear[room].median().clamp_min(1e-12), gt_linear[room].median()
     matched = mu_law((pred_linear * (gt_room / pred_room)).clamp(0, 1))
-    return {"hdr_psnr": psnr(pred, gt), "peak_ratio": float(gt_room / pred_room),
-            "room_matched_psnr": psnr(matched, gt), "room_psnr": psnr(pred[room], gt[room]),
-            "room_share": float(room.double().mean())}
+    return {
+        "hdr_psnr": psnr(pred, gt),
+        "peak_ratio": float(gt_room / pred_room),
+        "room_matched_psnr": psnr(matched, gt),
+        "room_psnr": psnr(pred[room], gt[room]),
+        "room_share": float(room.double().mean()),
+    }
 
 
-def probe(method: str, scene_name: str, steps: int, out: Path, overrides: tuple = (), label: str = "") -> dict[str, float]:
+def probe(
+    method: str, scene_name: str, steps: int, out: Path, overrides: tuple = (), label: str = ""
+) -> dict[str, float]:
     spec = RunSpec(backbone="nerf", method=method, scene=scene_name, overrides=overrides)
     scene = cached_scene(spec.scene, spec.exposure_index)
     trainer = build_run(spec, scene, Path(tempfile.mkdtemp()), RunBudget(steps=steps))

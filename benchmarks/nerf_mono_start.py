@@ -20,8 +20,8 @@ from backbones.nerf import NerfBackbone
 from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.bench.runs import cached_scene, run_facts
 from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR
-from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.methods.base import MethodConfig
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
@@ -41,9 +41,17 @@ def run(variant: str, scene_name: str, steps: int, every: int, eval_views: int, 
     method, overrides = VARIANTS[variant]
     scene = cached_scene(scene_name, 1)
     config = train_config_for(type(NerfBackbone.presets()["cpu"]))(
-        backbone=NerfBackbone.presets()["cpu"], max_steps=steps, out=out / "run", quiet=True, save_renders=False,
-        checkpoint_every=10**9, max_eval_views=eval_views, seed=seed, data=DataConfig(scene=scene_name),
-        hdr=MethodConfig(method=method, **overrides))
+        backbone=NerfBackbone.presets()["cpu"],
+        max_steps=steps,
+        out=out / "run",
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_eval_views=eval_views,
+        seed=seed,
+        data=DataConfig(scene=scene_name),
+        hdr=MethodConfig(method=method, **overrides),
+    )
     trainer = Trainer(config, "nerf", scene)
     converter_lr = next(g["lr"] for g in trainer.optimizer.param_groups if g["name"] == "method")
     curve, cpu_seconds = [], 0.0
@@ -53,23 +61,37 @@ def run(variant: str, scene_name: str, steps: int, every: int, eval_views: int, 
         cpu_seconds += time.process_time() - started
         if trainer.step % every == 0:
             metrics = trainer.evaluate()
-            curve.append({"step": trainer.step, "cpu_seconds": cpu_seconds, "train_seconds": trainer.train_seconds,
-                          **{key: metrics[key] for key in ("hdr_psnr", "hdr_psnr_gt_max", "ldr_psnr")}})
-            print(f"{variant:<22} step {trainer.step:>5}  HDR {metrics['hdr_psnr']:6.2f}  LDR {metrics['ldr_psnr']:6.2f}",
-                  flush=True)
+            curve.append(
+                {
+                    "step": trainer.step,
+                    "cpu_seconds": cpu_seconds,
+                    "train_seconds": trainer.train_seconds,
+                    **{key: metrics[key] for key in ("hdr_psnr", "hdr_psnr_gt_max", "ldr_psnr")},
+                }
+            )
+            print(
+                f"{variant:<22} step {trainer.step:>5}  HDR {metrics['hdr_psnr']:6.2f}  LDR {metrics['ldr_psnr']:6.2f}",
+                flush=True,
+            )
     return {"variant": variant, "method": method, "converter_lr": converter_lr, "curve": curve}
 
 
 def markdown(results: dict) -> str:
     steps = [point["step"] for point in results["runs"][0]["curve"]]
     header = " | ".join(f"step {s}" for s in steps)
-    lines = [f"Scene `{results['scene']}`, t3, NeRF preset cpu, {results['eval_views']} test views, seed "
-             f"{results['seed']}; HDR / LDR PSNR (dB) after each number of steps; git "
-             f"{results['facts']['git_commit'][:10]}.", "",
-             f"| variant | converter lr | {header} | CPU s |", "|---|---|" + "---|" * len(steps) + "---|"]
+    lines = [
+        f"Scene `{results['scene']}`, t3, NeRF preset cpu, {results['eval_views']} test views, seed "
+        f"{results['seed']}; HDR / LDR PSNR (dB) after each number of steps; git "
+        f"{results['facts']['git_commit'][:10]}.",
+        "",
+        f"| variant | converter lr | {header} | CPU s |",
+        "|---|---|" + "---|" * len(steps) + "---|",
+    ]
     for row in results["runs"]:
         cells = " | ".join(f"{p['hdr_psnr']:.2f} / {p['ldr_psnr']:.2f}" for p in row["curve"])
-        lines.append(f"| {row['variant']} | {row['converter_lr']:g} | {cells} | {row['curve'][-1]['cpu_seconds']:.0f} |")
+        lines.append(
+            f"| {row['variant']} | {row['converter_lr']:g} | {cells} | {row['curve'][-1]['cpu_seconds']:.0f} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -85,8 +107,14 @@ def main() -> None:
     args_of.add_out(parser, Path("benchmarks/results/nerf_mono_start"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    results = {"facts": run_facts(), "scene": args.scene, "steps": args.steps, "eval_views": args.eval_views,
-               "seed": args.seed, "runs": []}
+    results = {
+        "facts": run_facts(),
+        "scene": args.scene,
+        "steps": args.steps,
+        "eval_views": args.eval_views,
+        "seed": args.seed,
+        "runs": [],
+    }
     for variant in args.variants:
         results["runs"].append(run(variant, args.scene, args.steps, args.every, args.eval_views, args.out, args.seed))
         write_json(args.out / "results.json", results)

@@ -25,18 +25,25 @@ def variant_name(spec: dict) -> str:
 
 
 def write_report(store: RowStore, path: Path) -> None:
-    rows = sorted((row for row in store.rows.values() if row["status"] == "ok"),
-                  key=lambda r: (r["spec"]["scene"], r["spec"]["method"], variant_name(r["spec"])))
+    rows = sorted(
+        (row for row in store.rows.values() if row["status"] == "ok"),
+        key=lambda r: (r["spec"]["scene"], r["spec"]["method"], variant_name(r["spec"])),
+    )
     points = max((len(row["curve"]) for row in rows), default=0)
     times = [f"{row['curve'][i]['train_seconds']:.0f} s" for row in rows[:1] for i in range(points)]
-    lines = ["HDR / LDR PSNR (dB) at each evaluation; ms a step over the run; share of seen cells occupied at the end.",
-             "", "| scene | method | variant | " + " | ".join(times) + " | ms / step | occupied |",
-             "|---|---|---|" + "---|" * points + "---|---|"]
+    lines = [
+        "HDR / LDR PSNR (dB) at each evaluation; ms a step over the run; share of seen cells occupied at the end.",
+        "",
+        "| scene | method | variant | " + " | ".join(times) + " | ms / step | occupied |",
+        "|---|---|---|" + "---|" * points + "---|---|",
+    ]
     for row in rows:
         cells = " | ".join(f"{c['hdr_psnr']:.1f} / {c['ldr_psnr']:.1f}" for c in row["curve"])
         occupied = row["backbone_statistics"].get("occupied_fraction")
-        lines.append(f"| {row['spec']['scene']} | {row['spec']['method']} | {variant_name(row['spec'])} | {cells} | "
-                     f"{1000 * row['mean_step_seconds']:.0f} | {'' if occupied is None else f'{100 * occupied:.0f} %'} |")
+        lines.append(
+            f"| {row['spec']['scene']} | {row['spec']['method']} | {variant_name(row['spec'])} | {cells} | "
+            f"{1000 * row['mean_step_seconds']:.0f} | {'' if occupied is None else f'{100 * occupied:.0f} %'} |"
+        )
     lines += [f"\nFailed: {row['key']}: {row['error']}" for row in store.rows.values() if row["status"] != "ok"]
     lines += ["", f"Made by `python {' '.join(sys.argv)}` (one seed; machine, commit and date in sweep.json)."]
     path.write_text("\n".join(lines) + "\n")
@@ -53,13 +60,23 @@ def main() -> None:
     args_of.add_out(parser, Path("benchmarks/results/nerf_occupancy_sweep"))
     args = parser.parse_args()
     variants = [args_of.variant_overrides(text, "backbone.field.") for text in args.variant or ["base"]]
-    specs = [RunSpec(backbone="nerf", method=method, scene=scene, overrides=overrides)
-             for overrides in variants for scene in args.scenes for method in args.methods]
+    specs = [
+        RunSpec(backbone="nerf", method=method, scene=scene, overrides=overrides)
+        for overrides in variants
+        for scene in args.scenes
+        for method in args.methods
+    ]
     budget = RunBudget(seconds=args.seconds, eval_points=args.eval_points, max_eval_views=args.eval_views)
     store = RowStore(args.out / "sweep.json", {"budget": budget.__dict__})
     try:
-        execute(specs, budget, store, args.out / "runs", ExecutorConfig(),
-                on_row=lambda row: write_report(store, args.out / "sweep.md"))
+        execute(
+            specs,
+            budget,
+            store,
+            args.out / "runs",
+            ExecutorConfig(),
+            on_row=lambda row: write_report(store, args.out / "sweep.md"),
+        )
     finally:
         if store.rows:
             write_report(store, args.out / "sweep.md")

@@ -53,6 +53,7 @@ class PhaseClock:
                 self.seconds[name] += elapsed - inner
                 if self._stack:
                     self._stack[-1][2] += elapsed
+
         return timed
 
 
@@ -91,12 +92,17 @@ def instrument(trainer, clock: PhaseClock) -> None:
     backbone.after_step = clock.wrap("density grid", backbone.after_step)
 
 
-def profile(scene: str, method: str, preset: str | None, warmup: int, steps: int, threads: int,
-            rays: int | None) -> dict:
+def profile(
+    scene: str, method: str, preset: str | None, warmup: int, steps: int, threads: int, rays: int | None
+) -> dict:
     torch.set_num_threads(threads)
     spec = RunSpec(backbone="nerf", method=method, preset=preset, scene=scene)
-    trainer = build_run(spec, cached_scene(scene, spec.exposure_index), Path(tempfile.mkdtemp(prefix="nerf_profile_")),
-                        RunBudget(steps=warmup + steps, max_eval_views=1))
+    trainer = build_run(
+        spec,
+        cached_scene(scene, spec.exposure_index),
+        Path(tempfile.mkdtemp(prefix="nerf_profile_")),
+        RunBudget(steps=warmup + steps, max_eval_views=1),
+    )
     if rays is not None:
         trainer.backbone.pixel_batch = rays
     for _ in range(warmup):
@@ -114,18 +120,30 @@ def profile(scene: str, method: str, preset: str | None, warmup: int, steps: int
     finally:
         torch.Tensor.backward = original_backward
     total = sum(step_times)
-    return {"scene": scene, "method": method, "preset": preset, "threads": threads, "warmup": warmup,
-            "steps": steps, "rays_per_step": trainer.backbone.pixel_batch,
-            "mean_step_seconds": total / steps, "median_step_seconds": statistics.median(step_times),
-            "phases": {phase: clock.seconds[phase] / steps for phase in PHASES}}
+    return {
+        "scene": scene,
+        "method": method,
+        "preset": preset,
+        "threads": threads,
+        "warmup": warmup,
+        "steps": steps,
+        "rays_per_step": trainer.backbone.pixel_batch,
+        "mean_step_seconds": total / steps,
+        "median_step_seconds": statistics.median(step_times),
+        "phases": {phase: clock.seconds[phase] / steps for phase in PHASES},
+    }
 
 
 def markdown(result: dict) -> str:
     total = result["mean_step_seconds"]
-    lines = [f"{result['scene']}, {result['method']}, preset {result['preset'] or '(default)'}, "
-             f"{result['rays_per_step']} rays per step, {result['threads']} threads, steps "
-             f"{result['warmup']}..{result['warmup'] + result['steps']}: mean step {1000 * total:.0f} ms",
-             "", "| phase | ms per step | share |", "|---|---|---|"]
+    lines = [
+        f"{result['scene']}, {result['method']}, preset {result['preset'] or '(default)'}, "
+        f"{result['rays_per_step']} rays per step, {result['threads']} threads, steps "
+        f"{result['warmup']}..{result['warmup'] + result['steps']}: mean step {1000 * total:.0f} ms",
+        "",
+        "| phase | ms per step | share |",
+        "|---|---|---|",
+    ]
     for phase in PHASES:
         seconds = result["phases"][phase]
         lines.append(f"| {phase} | {1000 * seconds:.1f} | {100 * seconds / total:.0f} % |")
@@ -140,8 +158,7 @@ def main() -> None:
     args_of.add_count(parser, "--warmup", 60, "training steps before timing")
     args_of.add_count(parser, "--steps", 40, help="timed steps")
     args_of.add_threads(parser)
-    parser.add_argument("--rays", type=args_of.COUNT, default=None,
-                        help="rays per step (default: the preset's)")
+    parser.add_argument("--rays", type=args_of.COUNT, default=None, help="rays per step (default: the preset's)")
     parser.add_argument("--json", type=Path, default=None, help="also write the result here")
     args = parser.parse_args()
     result = profile(args.scene, args.method, args.preset, args.warmup, args.steps, args.threads, args.rays)

@@ -37,14 +37,43 @@ def main() -> None:
     for gaussians, height, width in SIZES:
         ours, theirs = [], []
         for _ in range(args.rounds):
-            theirs.append(run_json([sys.executable, str(args.anchor / "bench_anchor_opensplat.py"), "--gaussians",
-                                    str(gaussians), "--height", str(height), "--width", str(width),
-                                    "--sh-degree", "3", "--mode", "fwd_bwd"])["fwd_bwd_s"])
-            ours.append(run_json([sys.executable, "-c", "import json; from backbones.gs.benchmark import "
-                                  f"time_training_pass as t; print(json.dumps(t({gaussians}, {height}, {width})))"])
-                        ["fwd_bwd_s"])
-        record = {"gaussians": gaussians, "height": height, "width": width, "opensplat_fwd_bwd_s": statistics.median(theirs),
-                  "ours_fwd_bwd_s": statistics.median(ours), "opensplat_rounds": theirs, "ours_rounds": ours}
+            theirs.append(
+                run_json(
+                    [
+                        sys.executable,
+                        str(args.anchor / "bench_anchor_opensplat.py"),
+                        "--gaussians",
+                        str(gaussians),
+                        "--height",
+                        str(height),
+                        "--width",
+                        str(width),
+                        "--sh-degree",
+                        "3",
+                        "--mode",
+                        "fwd_bwd",
+                    ]
+                )["fwd_bwd_s"]
+            )
+            ours.append(
+                run_json(
+                    [
+                        sys.executable,
+                        "-c",
+                        "import json; from backbones.gs.benchmark import "
+                        f"time_training_pass as t; print(json.dumps(t({gaussians}, {height}, {width})))",
+                    ]
+                )["fwd_bwd_s"]
+            )
+        record = {
+            "gaussians": gaussians,
+            "height": height,
+            "width": width,
+            "opensplat_fwd_bwd_s": statistics.median(theirs),
+            "ours_fwd_bwd_s": statistics.median(ours),
+            "opensplat_rounds": theirs,
+            "ours_rounds": ours,
+        }
         record["speedup"] = record["opensplat_fwd_bwd_s"] / record["ours_fwd_bwd_s"]
         records.append(record)
         print(json.dumps(record), flush=True)

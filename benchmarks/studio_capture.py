@@ -20,7 +20,6 @@ the true ones; each capture within 3 dB of the perfect twin. Writes results.json
 """
 
 import json
-import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -32,16 +31,16 @@ from rich.console import Console
 
 from backbones.gs import GaussianConfig
 from mono_hdr_plugin.apps.bench.runs import run_facts
-from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.data.io import read_exr, write_json
-from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.core.metrics import hdr_metrics
 from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
 from mono_hdr_plugin.apps.studio.alignment import camera_into, similarity
 from mono_hdr_plugin.apps.studio.render import render_scene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
 from mono_hdr_plugin.apps.studio.shoot import ShootConfig, ShootResult, shoot
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.data.io import read_exr, write_json
+from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -73,8 +72,12 @@ class BenchConfig:
 def studio_scene(config: BenchConfig):
     """The scene at the benchmark's own resolution and sample count, whatever the built-in defaults."""
     base = SCENES[config.scene]
-    return replace(base, resolution=(config.resolution, config.resolution), spp=config.spp,
-                   rig=replace(base.rig, views=config.views))
+    return replace(
+        base,
+        resolution=(config.resolution, config.resolution),
+        spp=config.spp,
+        rig=replace(base.rig, views=config.views),
+    )
 
 
 def truth_by_source(result: ShootResult) -> dict:
@@ -90,9 +93,16 @@ def merge_scores(dataset: Path, report, result: ShootResult, radiance: np.ndarra
         metrics = hdr_metrics(torch.from_numpy(merged), torch.from_numpy(radiance[truth[hdr_view.sources[0]].view]))
         true_exposures = np.array([truth[name].exposure for name in hdr_view.sources])
         ratio_error = np.array(hdr_view.exposures) / hdr_view.exposures[0] / (true_exposures / true_exposures[0]) - 1
-        rows.append({"view": hdr_view.name, "photos": len(hdr_view.sources), "hdr_psnr": metrics["hdr_psnr"],
-                     "hdr_psnr_gt_max": metrics["hdr_psnr_gt_max"], "dynamic_range_stops": hdr_view.dynamic_range_stops,
-                     "max_ratio_error": float(np.abs(ratio_error).max())})
+        rows.append(
+            {
+                "view": hdr_view.name,
+                "photos": len(hdr_view.sources),
+                "hdr_psnr": metrics["hdr_psnr"],
+                "hdr_psnr_gt_max": metrics["hdr_psnr_gt_max"],
+                "dynamic_range_stops": hdr_view.dynamic_range_stops,
+                "max_ratio_error": float(np.abs(ratio_error).max()),
+            }
+        )
     return rows
 
 
@@ -114,7 +124,9 @@ def alignment(data: SceneData, sources: dict[str, str], result: ShootResult, cam
     return transform, float(residual.max() / np.linalg.norm(known.max(0) - known.min(0)))
 
 
-def perfect_twin(data: SceneData, sources: dict[str, str], result: ShootResult, cameras, radiance, transform) -> SceneData:
+def perfect_twin(
+    data: SceneData, sources: dict[str, str], result: ShootResult, cameras, radiance, transform
+) -> SceneData:
     """The dataset with the studio's cameras, true exposures and true HDR at the bracketed viewpoints."""
     truth = truth_by_source(result)
     scale, rotation, translation = transform
@@ -123,19 +135,40 @@ def perfect_twin(data: SceneData, sources: dict[str, str], result: ShootResult, 
         shot = truth[sources[view.name]]
         camera = replace(cameras[shot.view], near=view.camera.near * scale, far=view.camera.far * scale)
         hdr = torch.from_numpy(radiance[shot.view]) if view.hdr is not None else None
-        return View(camera=camera, image=view.image, exposure=shot.exposure, view_id=view.view_id, name=view.name,
-                    hdr=hdr, stem=view.stem)
+        return View(
+            camera=camera,
+            image=view.image,
+            exposure=shot.exposure,
+            view_id=view.view_id,
+            name=view.name,
+            hdr=hdr,
+            stem=view.stem,
+        )
 
     points = data.points.double().numpy() * scale @ rotation.T + translation
     low, high = points.min(0), points.max(0)
-    return SceneData(name=f"{data.name}-perfect", train=[twin(v) for v in data.train], test=[twin(v) for v in data.test],
-                     bounds_min=torch.from_numpy(low).float(), bounds_max=torch.from_numpy(high).float(),
-                     points=torch.from_numpy(points).float(), point_colors=data.point_colors, metadata={})
+    return SceneData(
+        name=f"{data.name}-perfect",
+        train=[twin(v) for v in data.train],
+        test=[twin(v) for v in data.test],
+        bounds_min=torch.from_numpy(low).float(),
+        bounds_max=torch.from_numpy(high).float(),
+        points=torch.from_numpy(points).float(),
+        point_colors=data.point_colors,
+        metadata={},
+    )
 
 
 def train(data: SceneData, out: Path, config: BenchConfig) -> tuple[Trainer, float]:
-    run = train_config_for(GaussianConfig)(backbone=GaussianConfig(), out=out, quiet=True, save_renders=False,
-                                           max_steps=config.steps, checkpoint_every=10**9, seed=config.seed)
+    run = train_config_for(GaussianConfig)(
+        backbone=GaussianConfig(),
+        out=out,
+        quiet=True,
+        save_renders=False,
+        max_steps=config.steps,
+        checkpoint_every=10**9,
+        seed=config.seed,
+    )
     trainer = Trainer(run, "gs", data)
     started = time.perf_counter()
     trainer.fit()
@@ -162,10 +195,15 @@ def exposure_scores(trainer: Trainer, sources: dict[str, str], result: ShootResu
     true = true / true[int(exposures.reference)]
     error = exposures.relative_exposures().numpy() / true - 1
     initial = np.exp(exposures.initial_log.numpy()) / true - 1  # before training: EXIF, or measured from the photos
-    return {"learned": exposures.learned, "views": len(true), "max_error": float(np.abs(error).max()),
-            "median_error": float(np.median(np.abs(error))), "initial_max_error": float(np.abs(initial).max()),
-            "initial_median_error": float(np.median(np.abs(initial))),
-            "true_span_stops": float(np.log2(true.max() / true.min()))}
+    return {
+        "learned": exposures.learned,
+        "views": len(true),
+        "max_error": float(np.abs(error).max()),
+        "median_error": float(np.median(np.abs(error))),
+        "initial_max_error": float(np.abs(initial).max()),
+        "initial_median_error": float(np.median(np.abs(initial))),
+        "true_span_stops": float(np.log2(true.max() / true.min())),
+    }
 
 
 def run(config: BenchConfig) -> dict:
@@ -180,28 +218,47 @@ def run(config: BenchConfig) -> dict:
         write_json(folder / "truth.json", result.to_json())
         console.print(f"[bold]{variant}[/bold]: {len(result.shots)} photos, brackets at {result.bracket_views}")
         started = time.perf_counter()
-        report = process_data(ProcessDataConfig(images=folder / "photos", out=folder / "dataset", overwrite=True,
-                                                camera_model="SIMPLE_PINHOLE", seed=config.seed), console)
+        report = process_data(
+            ProcessDataConfig(
+                images=folder / "photos",
+                out=folder / "dataset",
+                overwrite=True,
+                camera_model="SIMPLE_PINHOLE",
+                seed=config.seed,
+            ),
+            console,
+        )
         process_seconds = time.perf_counter() - started
         data = load_scene(DataConfig(data=folder / "dataset"))
         sources = sources_of(folder / "dataset")
         transform, pose_error = alignment(data, sources, result, cameras)
-        held_out = result.held_out[:config.max_held_out]
+        held_out = result.held_out[: config.max_held_out]
         moved = [camera_into(cameras[i], transform, data.train[0].camera) for i in held_out]
         trainer, seconds = train(data, folder / "run", config)
-        capture = {"photos": len(result.shots), "placed": len(report.registered), "views": len(report.views),
-                   "hdr_views": len(report.hdr_views), "process_seconds": process_seconds,
-                   "pose_error": pose_error, "merges": merge_scores(folder / "dataset", report, result, render.radiance),
-                   "exposures": exposure_scores(trainer, sources, result), "train_seconds": seconds,
-                   "held_out": held_out_scores(trainer, moved, render.radiance, held_out)}
+        capture = {
+            "photos": len(result.shots),
+            "placed": len(report.registered),
+            "views": len(report.views),
+            "hdr_views": len(report.hdr_views),
+            "process_seconds": process_seconds,
+            "pose_error": pose_error,
+            "merges": merge_scores(folder / "dataset", report, result, render.radiance),
+            "exposures": exposure_scores(trainer, sources, result),
+            "train_seconds": seconds,
+            "held_out": held_out_scores(trainer, moved, render.radiance, held_out),
+        }
         if exif:
             twin = perfect_twin(data, sources, result, cameras, render.radiance, transform)
             perfect, seconds = train(twin, folder / "run-perfect", config)
-            results["perfect"] = {"train_seconds": seconds, "exposures": exposure_scores(perfect, sources, result),
-                                  "held_out": held_out_scores(perfect, [cameras[i] for i in held_out],
-                                                              render.radiance, held_out)}
+            results["perfect"] = {
+                "train_seconds": seconds,
+                "exposures": exposure_scores(perfect, sources, result),
+                "held_out": held_out_scores(perfect, [cameras[i] for i in held_out], render.radiance, held_out),
+            }
         results["captures"][variant] = capture
-        console.print(f"  {variant}: HDR PSNR {capture['held_out']['hdr_psnr']:.2f} dB on {len(held_out)} held-out views")
+        console.print(
+            f"  {variant}: HDR PSNR {capture['held_out']['hdr_psnr']:.2f} dB on {len(held_out)} held-out views"
+        )
     write_json(config.out / "results.json", results)
     (config.out / "results.md").write_text(markdown(results))
     return results
@@ -213,23 +270,38 @@ def percent_pair(maximum: float, median: float) -> str:
 
 def markdown(results: dict) -> str:
     perfect = results["perfect"]["held_out"]["hdr_psnr"]
-    lines = [f"# Studio capture, end to end ({results['config']['scene']}, {results['config']['resolution']} px, "
-             f"{results['config']['steps']} steps)", "",
-             "| data | photos | HDR views | merged HDR PSNR (min / mean) | exposure error (max / median) | "
-             "held-out HDR PSNR | gap to perfect |", "|---|---|---|---|---|---|---|",
-             f"| perfect poses, exposures, HDR | | | | | {perfect:.2f} | |"]
+    lines = [
+        f"# Studio capture, end to end ({results['config']['scene']}, {results['config']['resolution']} px, "
+        f"{results['config']['steps']} steps)",
+        "",
+        "| data | photos | HDR views | merged HDR PSNR (min / mean) | exposure error (max / median) | "
+        "held-out HDR PSNR | gap to perfect |",
+        "|---|---|---|---|---|---|---|",
+        f"| perfect poses, exposures, HDR | | | | | {perfect:.2f} | |",
+    ]
     for variant, capture in results["captures"].items():
         merges = [row["hdr_psnr"] for row in capture["merges"]]
         exposures = capture["exposures"]
-        error = "-" if exposures is None else (
-            f"{percent_pair(exposures['max_error'], exposures['median_error'])} (learned; measured from the photos "
-            f"before training: {percent_pair(exposures['initial_max_error'], exposures['initial_median_error'])})"
-            if exposures["learned"] else f"{percent_pair(exposures['max_error'], exposures['median_error'])} (EXIF)")
+        error = (
+            "-"
+            if exposures is None
+            else (
+                f"{percent_pair(exposures['max_error'], exposures['median_error'])} (learned; measured from the photos "
+                f"before training: {percent_pair(exposures['initial_max_error'], exposures['initial_median_error'])})"
+                if exposures["learned"]
+                else f"{percent_pair(exposures['max_error'], exposures['median_error'])} (EXIF)"
+            )
+        )
         psnr = capture["held_out"]["hdr_psnr"]
-        lines.append(f"| {variant} | {capture['photos']} ({capture['placed']} placed) | {capture['hdr_views']} | "
-                     f"{min(merges):.2f} / {np.mean(merges):.2f} | {error} | {psnr:.2f} | {perfect - psnr:+.2f} |")
-    lines += ["", f"git {results['facts']['git_commit'][:10]}, {results['facts']['date']}; HDR PSNR is mu-law with "
-              "each image over its own maximum; held-out views are the studio cameras never photographed."]
+        lines.append(
+            f"| {variant} | {capture['photos']} ({capture['placed']} placed) | {capture['hdr_views']} | "
+            f"{min(merges):.2f} / {np.mean(merges):.2f} | {error} | {psnr:.2f} | {perfect - psnr:+.2f} |"
+        )
+    lines += [
+        "",
+        f"git {results['facts']['git_commit'][:10]}, {results['facts']['date']}; HDR PSNR is mu-law with "
+        "each image over its own maximum; held-out views are the studio cameras never photographed.",
+    ]
     return "\n".join(lines) + "\n"
 
 

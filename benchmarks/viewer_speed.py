@@ -18,11 +18,11 @@ import torch
 
 from mono_hdr_plugin.apps.bench import script_args as args_of
 from mono_hdr_plugin.apps.camera_paths import viewer_from_camera
-from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.apps.viewer.gui import MIN_HEIGHT, MOVING_FRAME_SECONDS
 from mono_hdr_plugin.apps.viewer.renderer import ViewerRenderer
 from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
+from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.training.trained import load_trained_model
 
 
 def main() -> None:
@@ -46,16 +46,28 @@ def main() -> None:
             seconds.append(time.perf_counter() - started)
         median = statistics.median(seconds)
         pixels = height * round(height * 4 / 3)
-        rows.append({"height": height, "width": round(height * 4 / 3), "median_seconds": median,
-                     "pixels_per_second": pixels / median, "fps": 1.0 / median})
+        rows.append(
+            {
+                "height": height,
+                "width": round(height * 4 / 3),
+                "median_seconds": median,
+                "pixels_per_second": pixels / median,
+                "fps": 1.0 / median,
+            }
+        )
         print(f"{rows[-1]['width']} x {height}: {median * 1000:.0f} ms ({1 / median:.1f} fps)")
     rate = statistics.median(row["pixels_per_second"] for row in rows)
     moving_height = max(MIN_HEIGHT, int(math.sqrt(rate * MOVING_FRAME_SECONDS / (4 / 3))))
-    result = {"checkpoint": str(args.checkpoint), "backbone": model.pipeline.backbone_name,
-              "method": model.pipeline.method_name, "torch_threads": torch.get_num_threads(),
-              "machine": platform.processor() or platform.machine(),
-              "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip(),
-              "renders": rows, "moving_height": moving_height}
+    result = {
+        "checkpoint": str(args.checkpoint),
+        "backbone": model.pipeline.backbone_name,
+        "method": model.pipeline.method_name,
+        "torch_threads": torch.get_num_threads(),
+        "machine": platform.processor() or platform.machine(),
+        "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip(),
+        "renders": rows,
+        "moving_height": moving_height,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"while moving the viewer renders about {round(moving_height * 4 / 3)} x {moving_height}; wrote {args.out}")

@@ -10,22 +10,37 @@ import numpy as np
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync")
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+)
 
 
 def chromium_available() -> bool:
     return Path(CHROMIUM).is_file() and Path(CHROMEDRIVER).is_file()
 
 
-def screenshot_when(url: str, path: Path, ready, timeout: float = 120.0, size: tuple[int, int] = (1200, 800),
-                    settle: float = 1.0, script: str | None = None) -> np.ndarray:
+def screenshot_when(
+    url: str,
+    path: Path,
+    ready,
+    timeout: float = 120.0,
+    size: tuple[int, int] = (1200, 800),
+    settle: float = 1.0,
+    script: str | None = None,
+) -> np.ndarray:
     """Load `url`, then screenshot it every second until `ready(pixels)` holds (or the timeout
     passes); the last screenshot is written to `path` and returned as uint8 [H, W, 3]. `script`:
     JavaScript run before each screenshot (to close a notification, say)."""
-    from PIL import Image  # noqa: PLC0415
-    from selenium import webdriver  # noqa: PLC0415
-    from selenium.webdriver.chrome.service import Service  # noqa: PLC0415
+    from PIL import Image
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
 
     profile = tempfile.mkdtemp(prefix="chromium-profile-")
     options = webdriver.ChromeOptions()

@@ -10,12 +10,21 @@ from pathlib import Path
 from mono_hdr_plugin.apps.bench.runs import RunBudget, RunSpec, run_row
 
 
-def compare(scene_name: str, seconds: float, out: Path, backbones: tuple[str, ...] = ("nerf", "gs"),
-            method: str = "mono", eval_points: int = 4, max_eval_views: int | None = 4) -> list[dict]:
+def compare(
+    scene_name: str,
+    seconds: float,
+    out: Path,
+    backbones: tuple[str, ...] = ("nerf", "gs"),
+    method: str = "mono",
+    eval_points: int = 4,
+    max_eval_views: int | None = 4,
+) -> list[dict]:
     """One run per backbone (its default preset), same scene, same budget: the benchmark's rows."""
     budget = RunBudget(seconds=seconds, eval_points=eval_points, max_eval_views=max_eval_views)
-    return [run_row(RunSpec(backbone=backbone, method=method, scene=scene_name), budget, str(out / backbone))
-            for backbone in backbones]
+    return [
+        run_row(RunSpec(backbone=backbone, method=method, scene=scene_name), budget, str(out / backbone))
+        for backbone in backbones
+    ]
 
 
 def plot(results: list[dict], path: Path) -> None:
@@ -26,8 +35,12 @@ def plot(results: list[dict], path: Path) -> None:
 
     figure, axis = plt.subplots(figsize=(6, 4))
     for run in results:
-        axis.plot([p["train_seconds"] for p in run["curve"]], [p["hdr_psnr"] for p in run["curve"]], marker="o",
-                  label=run["spec"]["backbone"])
+        axis.plot(
+            [p["train_seconds"] for p in run["curve"]],
+            [p["hdr_psnr"] for p in run["curve"]],
+            marker="o",
+            label=run["spec"]["backbone"],
+        )
     axis.set_xlabel("training seconds")
     axis.set_ylabel("HDR mu-law PSNR (dB)")
     axis.grid(alpha=0.3)
@@ -45,11 +58,15 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/compare"))
     args = parser.parse_args()
     results = compare(args.scene, args.seconds, args.out, method=args.method)
-    print(f"{'backbone':<8} {'steps':>6} {'seconds':>8} {'HDR PSNR':>9} {'LDR PSNR':>9} {'fps LDR':>8} {'fps LDR+HDR':>12}")
+    print(
+        f"{'backbone':<8} {'steps':>6} {'seconds':>8} {'HDR PSNR':>9} {'LDR PSNR':>9} {'fps LDR':>8} {'fps LDR+HDR':>12}"
+    )
     for run in results:
         final = run["final"]
-        print(f"{run['spec']['backbone']:<8} {final['steps']:>6} {final['train_seconds']:>8.1f} "
-              f"{final['hdr_psnr']:>9.2f} {final['ldr_psnr']:>9.2f} {run['fps_ldr']:>8.2f} {run['fps_ldr_hdr']:>12.2f}")
+        print(
+            f"{run['spec']['backbone']:<8} {final['steps']:>6} {final['train_seconds']:>8.1f} "
+            f"{final['hdr_psnr']:>9.2f} {final['ldr_psnr']:>9.2f} {run['fps_ldr']:>8.2f} {run['fps_ldr_hdr']:>12.2f}"
+        )
     plot(results, args.out / "compare_backbones.png")
     print(f"plot written to {args.out / 'compare_backbones.png'}")
 

@@ -16,9 +16,9 @@ import torch.nn.functional as F
 
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera, look_at
-from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.core.registry import register_backbone
 from mono_hdr_plugin.core.validation import POSITIVE, at_least
+from mono_hdr_plugin.data.dataset import SceneData, View
 
 
 @dataclass
@@ -83,8 +83,9 @@ class VoxelGridBackbone(Backbone):
         def composite(values: torch.Tensor) -> torch.Tensor:
             return (weights[..., None] * values).sum(-2).reshape(*camera.output_shape, values.shape[-1])
 
-        return LdrFeatures(colors=torch.sigmoid(raw), raw_colors=raw, composite=composite,
-                           extras={"alpha": weights.sum(-1)})
+        return LdrFeatures(
+            colors=torch.sigmoid(raw), raw_colors=raw, composite=composite, extras={"alpha": weights.sum(-1)}
+        )
 
 
 def make_capture(size: int = 24, views: int = 12, exposure: float = 0.5, seed: int = 0) -> SceneData:
@@ -96,19 +97,32 @@ def make_capture(size: int = 24, views: int = 12, exposure: float = 0.5, seed: i
     blob_a = torch.exp(-((x - 0.3) ** 2 + y**2 + z**2) / 0.08)
     blob_b = torch.exp(-((x + 0.35) ** 2 + (y - 0.2) ** 2 + (z + 0.1) ** 2) / 0.05)
     density = (4.0 * (blob_a + blob_b))[None]
-    radiance = torch.stack([0.05 + 6.0 * blob_a, 0.05 + 1.5 * blob_b + 0.5 * blob_a, 0.1 + 0.3 * torch.rand(r, r, r, generator=generator)])
+    radiance = torch.stack(
+        [0.05 + 6.0 * blob_a, 0.05 + 1.5 * blob_b + 0.5 * blob_a, 0.1 + 0.3 * torch.rand(r, r, r, generator=generator)]
+    )
     lo, hi = torch.full((3,), -1.0), torch.full((3,), 1.0)
     scene_views = []
     for index in range(views):
         angle = 2 * torch.pi * index / views
         eye = torch.tensor([2.6 * torch.cos(torch.tensor(angle)), 2.6 * torch.sin(torch.tensor(angle)), 0.8])
-        camera = Camera(look_at(eye, torch.zeros(3)), fx=size * 1.1, fy=size * 1.1, cx=size / 2, cy=size / 2,
-                        width=size, height=size, near=1.2, far=4.0)
+        camera = Camera(
+            look_at(eye, torch.zeros(3)),
+            fx=size * 1.1,
+            fy=size * 1.1,
+            cx=size / 2,
+            cy=size / 2,
+            width=size,
+            height=size,
+            near=1.2,
+            far=4.0,
+        )
         points, deltas = ray_samples(camera, 64)
         weights = volume_render(F.relu(sample_grid(density, points, lo, hi)[..., 0]), deltas)
         hdr = (weights[..., None] * sample_grid(radiance, points, lo, hi)).sum(-2).reshape(size, size, 3)
         ldr = (hdr * exposure).clamp(0, 1) ** (1 / 2.2)
-        scene_views.append(View(camera=camera, image=ldr, exposure=exposure, view_id=index, name=f"view_{index:03d}", hdr=hdr))
+        scene_views.append(
+            View(camera=camera, image=ldr, exposure=exposure, view_id=index, name=f"view_{index:03d}", hdr=hdr)
+        )
     return SceneData(name="voxel-blobs", train=scene_views[0::2], test=scene_views[1::2], bounds_min=lo, bounds_max=hi)
 
 
@@ -121,14 +135,17 @@ def main() -> None:
     parser.add_argument("--method", default="mono")
     args = parser.parse_args()
     scene = make_capture()
-    config = train_config_for(VoxelGridConfig, args.method)(max_steps=args.steps, quiet=True, save_renders=False,
-                                                            checkpoint_every=10**9)
+    config = train_config_for(VoxelGridConfig, args.method)(
+        max_steps=args.steps, quiet=True, save_renders=False, checkpoint_every=10**9
+    )
     config.out = config.out.parent / "voxel-grid-example"
     trainer = Trainer(config, "voxel-grid", scene)
     before = trainer.evaluate()
     after = trainer.train()
-    print(f"voxel-grid + {args.method}: HDR PSNR {before['hdr_psnr']:.2f} dB at step 0 -> "
-          f"{after['hdr_psnr']:.2f} dB after {args.steps} steps ({after['train_seconds']:.1f} s)")
+    print(
+        f"voxel-grid + {args.method}: HDR PSNR {before['hdr_psnr']:.2f} dB at step 0 -> "
+        f"{after['hdr_psnr']:.2f} dB after {args.steps} steps ({after['train_seconds']:.1f} s)"
+    )
 
 
 if __name__ == "__main__":

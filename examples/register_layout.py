@@ -50,22 +50,44 @@ class SceneJsonLayout(DatasetLayout):
             views = []
             for number, entry in enumerate(index["views"]):
                 where = f"{index_file} view {number}"
-                camera = camera_from(where, c2w=torch.tensor(entry["c2w"], dtype=torch.float32),
-                                     **{key: entry[key] for key in CAMERA_KEYS})
-                shots = [Shot(check_exposure(photo["exposure"], where),
-                              functools.partial(read_image, folder / photo["file"]), photo["file"])
-                         for photo in entry["photos"]]
+                camera = camera_from(
+                    where,
+                    c2w=torch.tensor(entry["c2w"], dtype=torch.float32),
+                    **{key: entry[key] for key in CAMERA_KEYS},
+                )
+                shots = [
+                    Shot(
+                        check_exposure(photo["exposure"], where),
+                        functools.partial(read_image, folder / photo["file"]),
+                        photo["file"],
+                    )
+                    for photo in entry["photos"]
+                ]
                 hdr = functools.partial(read_exr, folder / entry["hdr"]) if entry.get("hdr") else None
-                views.append(CapturedView(view_id=number, camera=camera, split=entry["split"], name=f"{number:03d}",
-                                          shots=sorted(shots, key=lambda shot: shot.exposure), hdr=hdr))
+                views.append(
+                    CapturedView(
+                        view_id=number,
+                        camera=camera,
+                        split=entry["split"],
+                        name=f"{number:03d}",
+                        shots=sorted(shots, key=lambda shot: shot.exposure),
+                        hdr=hdr,
+                    )
+                )
             low, high = (torch.tensor(corner, dtype=torch.float32) for corner in index["bounds"])
         except (KeyError, TypeError, ValueError) as error:
             if isinstance(error, DatasetError):
                 raise
-            raise DatasetError(f"{index_file}: {type(error).__name__}: {error}; see the format in "
-                               "examples/register_layout.py") from error
-        return CapturedScene(name=folder.name, views=views, bounds_min=low, bounds_max=high,
-                             metadata={"source": str(folder), "layout": "scene-json"})
+            raise DatasetError(
+                f"{index_file}: {type(error).__name__}: {error}; see the format in examples/register_layout.py"
+            ) from error
+        return CapturedScene(
+            name=folder.name,
+            views=views,
+            bounds_min=low,
+            bounds_max=high,
+            metadata={"source": str(folder), "layout": "scene-json"},
+        )
 
     @staticmethod
     def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
@@ -81,10 +103,19 @@ class SceneJsonLayout(DatasetLayout):
             if view.hdr is not None:
                 hdr = f"hdr/{view.view_id:03d}.exr"
                 write_exr(folder / hdr, view.hdr())
-            views.append({"split": view.split, "c2w": camera.c2w.tolist(), "photos": photos, "hdr": hdr,
-                          **{key: getattr(camera, key) for key in CAMERA_KEYS}})
-        write_json(folder / "scene.json", {"format": FORMAT, "views": views,
-                                           "bounds": [scene.bounds_min.tolist(), scene.bounds_max.tolist()]})
+            views.append(
+                {
+                    "split": view.split,
+                    "c2w": camera.c2w.tolist(),
+                    "photos": photos,
+                    "hdr": hdr,
+                    **{key: getattr(camera, key) for key in CAMERA_KEYS},
+                }
+            )
+        write_json(
+            folder / "scene.json",
+            {"format": FORMAT, "views": views, "bounds": [scene.bounds_min.tolist(), scene.bounds_max.tolist()]},
+        )
 
 
 def main() -> None:

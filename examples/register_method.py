@@ -41,9 +41,11 @@ class GlobalToneCurve(HdrMethod):
 
     options_class = ToneCurveOptions
     resume_identity_flags = (*HdrMethod.resume_identity_flags, "--knots")  # the curve's parameters have knots - 1 rises
-    hdr_recipe = ("colour c = the Gaussian's LDR colour; levels = [log_offset, log_offset + cumsum(softplus("
-                  "raw_rises))] (knots values); hdr = exp(levels interpolated linearly at c * (knots - 1)), the same "
-                  "curve for every channel. Composite hdr with the same alpha weights as the LDR colour.")
+    hdr_recipe = (
+        "colour c = the Gaussian's LDR colour; levels = [log_offset, log_offset + cumsum(softplus("
+        "raw_rises))] (knots values); hdr = exp(levels interpolated linearly at c * (knots - 1)), the same "
+        "curve for every channel. Composite hdr with the same alpha weights as the LDR colour."
+    )
     initial_log_range = (-4.0, 4.0)
     """ln HDR of LDR 0 and LDR 1 before training: a straight line between them."""
 
@@ -86,15 +88,22 @@ def main() -> None:
     scene = load_scene(DataConfig(scene=args.scene))
     for name, backbone_class in (("gs", GaussianBackbone), ("nerf", NerfBackbone)):
         config = train_config_for(backbone_class.config_class, "tone-curve")(
-            backbone=next(iter(backbone_class.presets().values())), max_steps=args.steps, quiet=True,
-            save_renders=False, checkpoint_every=10**9, max_eval_views=4)
+            backbone=next(iter(backbone_class.presets().values())),
+            max_steps=args.steps,
+            quiet=True,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_eval_views=4,
+        )
         config.hdr.options.knots = args.knots
         config.out = config.out.parent / f"tone-curve-{name}"
         trainer = Trainer(config, name, scene)
         metrics = trainer.train()
-        print(f"{name} + tone-curve ({trainer.method.knots} knots) on {args.scene}: HDR PSNR "
-              f"{metrics['hdr_psnr']:.2f} dB, LDR PSNR {metrics['ldr_psnr']:.2f} dB after {args.steps} steps "
-              f"({metrics['train_seconds']:.0f} s)")
+        print(
+            f"{name} + tone-curve ({trainer.method.knots} knots) on {args.scene}: HDR PSNR "
+            f"{metrics['hdr_psnr']:.2f} dB, LDR PSNR {metrics['ldr_psnr']:.2f} dB after {args.steps} steps "
+            f"({metrics['train_seconds']:.0f} s)"
+        )
 
 
 if __name__ == "__main__":

@@ -11,14 +11,14 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-
 from browser_screenshot import screenshot_when
-from mono_hdr_plugin.training.evaluation import first_per_camera
-from mono_hdr_plugin.training.trained import load_trained_model
+
 from mono_hdr_plugin.apps.render import render_exposure_sweep
 from mono_hdr_plugin.apps.viewer.gui import Viewer
 from mono_hdr_plugin.apps.viewer.renderer import VIEWER_OUTPUTS, ViewerRenderer
 from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
+from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.training.trained import load_trained_model
 
 # Viser's warning that WebGL runs in software (true in a headless browser) covers the render.
 CLOSE_NOTIFICATIONS = "document.querySelectorAll('.mantine-Notification-root').forEach(n => n.remove())"
@@ -48,8 +48,12 @@ def main() -> None:
         name = next(key for key, view in viewer.renderer.views.items() if view.camera is camera)
         viewer.view_choice.value = name
         viewer.server.initial_camera.position = tuple(float(v) for v in camera.center)
-        screenshot_when(viewer.url, args.out / "viewer.png", lambda pixels: pixels[100:-60, 60:800].std() > 8,
-                        script=CLOSE_NOTIFICATIONS)
+        screenshot_when(
+            viewer.url,
+            args.out / "viewer.png",
+            lambda pixels: pixels[100:-60, 60:800].std() > 8,
+            script=CLOSE_NOTIFICATIONS,
+        )
     finally:
         viewer.stop()
     print(f"wrote {args.out / 'viewer.png'} and {args.out / 'exposure_sweep.png'}")

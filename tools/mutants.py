@@ -31,8 +31,18 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PROJECT_PACKAGES = ("mono_hdr_plugin", "backbones", "register_backbone", "register_method", "register_layout",
-                    "known_render", "gs_scenes", "nerf_scenes", "hard_scenes", "conftest")
+PROJECT_PACKAGES = (
+    "mono_hdr_plugin",
+    "backbones",
+    "register_backbone",
+    "register_method",
+    "register_layout",
+    "known_render",
+    "gs_scenes",
+    "nerf_scenes",
+    "hard_scenes",
+    "conftest",
+)
 
 
 @dataclass(frozen=True)
@@ -50,44 +60,131 @@ WIRING = "tests/core/test_loss_wiring.py"
 # test_train.py without its 150-step end-to-end run (the slowest test by far; the others cover the step)
 QUICK_TRAIN_TESTS = ("tests/core/test_train.py", "-k", "not hdr_error_drops")
 KNOWN_ANSWER = "tests/core/test_evaluation_known_answer.py::TestEvaluateKnownAnswer"
-METHOD_TESTS = ("tests/core/test_methods.py", "tests/core/test_method_details.py",
-                f"{WIRING}::test_defaults_are_the_papers", "tests/core/test_registry.py", f"{WIRING}::TestEveryLossSwitch",
-                f"{WIRING}::TestWeightsByFiniteDifferences", KNOWN_ANSWER)
+METHOD_TESTS = (
+    "tests/core/test_methods.py",
+    "tests/core/test_method_details.py",
+    f"{WIRING}::test_defaults_are_the_papers",
+    "tests/core/test_registry.py",
+    f"{WIRING}::TestEveryLossSwitch",
+    f"{WIRING}::TestWeightsByFiniteDifferences",
+    KNOWN_ANSWER,
+)
 TARGETS = {
-    "metrics": Target("mono_hdr_plugin.core.metrics", "mono_hdr_plugin/core/metrics.py", (
-        "tests/core/test_metric_values.py", "tests/core/test_metrics.py", KNOWN_ANSWER)),
-    "losses": Target("mono_hdr_plugin.core.losses", "mono_hdr_plugin/core/losses.py", (
-        "tests/core/test_metrics.py::TestLosses", "tests/core/test_method_details.py", f"{WIRING}::TestEveryLossSwitch")),
-    "converters": Target("mono_hdr_plugin.core.converters", "mono_hdr_plugin/core/converters.py", (
-        "tests/core/test_converters.py", "tests/core/test_method_details.py", "tests/core/test_methods.py",
-        KNOWN_ANSWER)),
+    "metrics": Target(
+        "mono_hdr_plugin.core.metrics",
+        "mono_hdr_plugin/core/metrics.py",
+        ("tests/core/test_metric_values.py", "tests/core/test_metrics.py", KNOWN_ANSWER),
+    ),
+    "losses": Target(
+        "mono_hdr_plugin.core.losses",
+        "mono_hdr_plugin/core/losses.py",
+        (
+            "tests/core/test_metrics.py::TestLosses",
+            "tests/core/test_method_details.py",
+            f"{WIRING}::TestEveryLossSwitch",
+        ),
+    ),
+    "converters": Target(
+        "mono_hdr_plugin.core.converters",
+        "mono_hdr_plugin/core/converters.py",
+        (
+            "tests/core/test_converters.py",
+            "tests/core/test_method_details.py",
+            "tests/core/test_methods.py",
+            KNOWN_ANSWER,
+        ),
+    ),
     "methods": Target("mono_hdr_plugin.methods.base", "mono_hdr_plugin/methods/base.py", METHOD_TESTS),
     "methods-mono": Target("mono_hdr_plugin.methods.mono", "mono_hdr_plugin/methods/mono.py", METHOD_TESTS),
-    "methods-crf": Target("mono_hdr_plugin.methods.crf_baseline", "mono_hdr_plugin/methods/crf_baseline.py",
-                          METHOD_TESTS),
+    "methods-crf": Target(
+        "mono_hdr_plugin.methods.crf_baseline", "mono_hdr_plugin/methods/crf_baseline.py", METHOD_TESTS
+    ),
     "methods-hdr-nerf": Target("mono_hdr_plugin.methods.hdr_nerf", "mono_hdr_plugin/methods/hdr_nerf.py", METHOD_TESTS),
-    "pipeline": Target("mono_hdr_plugin.training.pipeline", "mono_hdr_plugin/training/pipeline.py", (
-        "tests/core/test_pipeline.py", "tests/core/test_train_step.py", f"{WIRING}::TestEveryLossSwitch",
-        f"{WIRING}::TestHdrViewRatioRows", KNOWN_ANSWER, *QUICK_TRAIN_TESTS)),
-    "train-step": Target("mono_hdr_plugin.training.trainer", "mono_hdr_plugin/training/trainer.py", (
-        "tests/core/test_train_step.py", f"{WIRING}::TestEveryLossSwitch", f"{WIRING}::TestHdrViewRatioRows",
-        f"{WIRING}::TestWeightsByFiniteDifferences", *QUICK_TRAIN_TESTS),
-        scopes=("parse_view_ratio", "hdr_supervised_views", "Trainer.__init__", "Trainer._next_view",
-                "Trainer._batch", "Trainer._bad_tensors", "Trainer.train_step", "Trainer.evaluate")),
-    "evaluation": Target("mono_hdr_plugin.training.evaluation", "mono_hdr_plugin/training/evaluation.py", (KNOWN_ANSWER,)),
-    "rasterizer": Target("backbones.gs.rasterizer", "backbones/gs/rasterizer.py", (
-        "tests/gs/test_gs_rasterizer_api.py", "tests/gs/test_gs_rasterizer.py", "tests/gs/test_gs_edge_gradients.py")),
+    "pipeline": Target(
+        "mono_hdr_plugin.training.pipeline",
+        "mono_hdr_plugin/training/pipeline.py",
+        (
+            "tests/core/test_pipeline.py",
+            "tests/core/test_train_step.py",
+            f"{WIRING}::TestEveryLossSwitch",
+            f"{WIRING}::TestHdrViewRatioRows",
+            KNOWN_ANSWER,
+            *QUICK_TRAIN_TESTS,
+        ),
+    ),
+    "train-step": Target(
+        "mono_hdr_plugin.training.trainer",
+        "mono_hdr_plugin/training/trainer.py",
+        (
+            "tests/core/test_train_step.py",
+            f"{WIRING}::TestEveryLossSwitch",
+            f"{WIRING}::TestHdrViewRatioRows",
+            f"{WIRING}::TestWeightsByFiniteDifferences",
+            *QUICK_TRAIN_TESTS,
+        ),
+        scopes=(
+            "parse_view_ratio",
+            "hdr_supervised_views",
+            "Trainer.__init__",
+            "Trainer._next_view",
+            "Trainer._batch",
+            "Trainer._bad_tensors",
+            "Trainer.train_step",
+            "Trainer.evaluate",
+        ),
+    ),
+    "evaluation": Target(
+        "mono_hdr_plugin.training.evaluation", "mono_hdr_plugin/training/evaluation.py", (KNOWN_ANSWER,)
+    ),
+    "rasterizer": Target(
+        "backbones.gs.rasterizer",
+        "backbones/gs/rasterizer.py",
+        ("tests/gs/test_gs_rasterizer_api.py", "tests/gs/test_gs_rasterizer.py", "tests/gs/test_gs_edge_gradients.py"),
+    ),
 }
 
 # Method calls whose removal leaves a value of the same kind: `x.detach()` -> `x` and so on
 # (not functions of a module: dropping `torch.mean(...)` to `torch` only makes a crash).
 MODULE_NAMES = {"torch", "F", "nn", "math", "np"}
-DROPPABLE_METHODS = {"detach", "clamp", "clamp_min", "clamp_max", "contiguous", "float", "double", "clone", "abs",
-                     "squeeze", "unsqueeze", "mean", "sum", "item"}
-BINARY_SWAPS = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.FloorDiv: ast.Div,
-                ast.Mod: ast.FloorDiv, ast.Pow: ast.Mult, ast.BitAnd: ast.BitOr, ast.BitOr: ast.BitAnd}
-COMPARE_SWAPS = {ast.Lt: ast.LtE, ast.LtE: ast.Lt, ast.Gt: ast.GtE, ast.GtE: ast.Gt, ast.Eq: ast.NotEq,
-                 ast.NotEq: ast.Eq, ast.Is: ast.IsNot, ast.IsNot: ast.Is, ast.In: ast.NotIn, ast.NotIn: ast.In}
+DROPPABLE_METHODS = {
+    "detach",
+    "clamp",
+    "clamp_min",
+    "clamp_max",
+    "contiguous",
+    "float",
+    "double",
+    "clone",
+    "abs",
+    "squeeze",
+    "unsqueeze",
+    "mean",
+    "sum",
+    "item",
+}
+BINARY_SWAPS = {
+    ast.Add: ast.Sub,
+    ast.Sub: ast.Add,
+    ast.Mult: ast.Div,
+    ast.Div: ast.Mult,
+    ast.FloorDiv: ast.Div,
+    ast.Mod: ast.FloorDiv,
+    ast.Pow: ast.Mult,
+    ast.BitAnd: ast.BitOr,
+    ast.BitOr: ast.BitAnd,
+}
+COMPARE_SWAPS = {
+    ast.Lt: ast.LtE,
+    ast.LtE: ast.Lt,
+    ast.Gt: ast.GtE,
+    ast.GtE: ast.Gt,
+    ast.Eq: ast.NotEq,
+    ast.NotEq: ast.Eq,
+    ast.Is: ast.IsNot,
+    ast.IsNot: ast.Is,
+    ast.In: ast.NotIn,
+    ast.NotIn: ast.In,
+}
 
 
 @dataclass
@@ -112,8 +209,7 @@ def _mutations(node: ast.AST) -> Iterator[tuple[str, object]]:
     """(description, function giving the mutated copy of `node`) for every mutation of `node`."""
     if isinstance(node, (ast.BinOp, ast.AugAssign)) and type(node.op) in BINARY_SWAPS:
         new_op = BINARY_SWAPS[type(node.op)]
-        yield (f"{type(node.op).__name__} -> {new_op.__name__}",
-               lambda n, new_op=new_op: _replace(n, op=new_op()))
+        yield (f"{type(node.op).__name__} -> {new_op.__name__}", lambda n, new_op=new_op: _replace(n, op=new_op()))
     elif isinstance(node, ast.Compare):
         for index, op in enumerate(node.ops):
             if type(op) in COMPARE_SWAPS:
@@ -139,14 +235,18 @@ def _mutations(node: ast.AST) -> Iterator[tuple[str, object]]:
     elif isinstance(node, ast.Call):
         positional = [a for a in node.args if not isinstance(a, ast.Starred)]
         if len(positional) >= 2 and len(positional) == len(node.args):
+
             def swap_args(n):
                 args = list(n.args)
                 args[0], args[1] = args[1], args[0]
                 return _replace(n, args=args)
 
             yield f"swap the first two arguments of {_call_name(node)}", swap_args
-        if (isinstance(node.func, ast.Attribute) and node.func.attr in DROPPABLE_METHODS
-                and not (isinstance(node.func.value, ast.Name) and node.func.value.id in MODULE_NAMES)):
+        if (
+            isinstance(node.func, ast.Attribute)
+            and node.func.attr in DROPPABLE_METHODS
+            and not (isinstance(node.func.value, ast.Name) and node.func.value.id in MODULE_NAMES)
+        ):
             yield f"drop .{node.func.attr}(...)", lambda n: n.func.value
 
 
@@ -164,7 +264,8 @@ def _replace(node: ast.AST, **changes) -> ast.AST:
 def _skipped(node: ast.AST) -> bool:
     """Subtrees whose mutants say nothing about behaviour: messages, docstrings, annotations."""
     return isinstance(node, (ast.JoinedStr, ast.Raise, ast.Assert)) or (
-        isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant))
+        isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+    )
 
 
 class _Walker:
@@ -226,8 +327,9 @@ class _Walker:
             if isinstance(value, list) and value and isinstance(value[0], ast.stmt):
                 setattr(node, name, self._visit_statements(value, qualname))
             elif isinstance(value, list):
-                setattr(node, name, [self.visit(item, qualname) if isinstance(item, ast.AST) else item
-                                     for item in value])
+                setattr(
+                    node, name, [self.visit(item, qualname) if isinstance(item, ast.AST) else item for item in value]
+                )
             elif isinstance(value, ast.AST):
                 setattr(node, name, self.visit(value, qualname))
 
@@ -245,8 +347,10 @@ def enumerate_mutants(name: str, target: Target) -> list[Mutant]:
     lines = source.splitlines()
     walker = _Walker(target.scopes)
     walker.visit(ast.parse(source))
-    return [Mutant(name, index, site.line, site.description, lines[site.line - 1].strip() if site.line else "")
-            for index, site in enumerate(walker.sites)]
+    return [
+        Mutant(name, index, site.line, site.description, lines[site.line - 1].strip() if site.line else "")
+        for index, site in enumerate(walker.sites)
+    ]
 
 
 def mutated_code(target: Target, index: int):
@@ -287,6 +391,7 @@ def preload() -> None:
     rasteriser, then forget the project's own modules so each mutant imports them afresh."""
     sys.path[:0] = [str(ROOT), str(ROOT / "examples")]
     import pytest  # noqa: F401 - imported for what it imports
+
     import mono_hdr_plugin.apps.cli
     import mono_hdr_plugin.training.evaluation
     import mono_hdr_plugin.training.trainer  # noqa: F401 - imported for what it imports
@@ -376,8 +481,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--targets", nargs="*", choices=sorted(TARGETS), help="default: all")
     parser.add_argument("--ids", nargs="*", type=int, help="run only these mutant ids (of one target)")
-    parser.add_argument("--rerun", type=Path,
-                        help="results.json of an earlier run: run its survivors and timeouts again")
+    parser.add_argument(
+        "--rerun", type=Path, help="results.json of an earlier run: run its survivors and timeouts again"
+    )
     parser.add_argument("--list", action="store_true", help="list the mutants and stop")
     parser.add_argument("--out", type=Path, default=ROOT / "outputs" / "mutants")
     args = parser.parse_args()
@@ -412,12 +518,23 @@ def main() -> int:
         target = TARGETS[mutant.target]
         code = mutated_code(target, mutant.id)
         mutant.status, mutant.seconds, mutant.killed_by = run_tests(
-            target, code, 5 * baseline[mutant.target] + 120, args.out / "mutant.log")
-        print(f"[{count}/{len(mutants)}] {mutant.status:8s} {mutant.target} #{mutant.id} line {mutant.line}: "
-              f"{mutant.description} ({mutant.seconds:.1f} s)", flush=True)
-        (args.out / "results.json").write_text(json.dumps(
-            {"baseline_seconds": baseline, "elapsed_seconds": time.perf_counter() - started,
-             "mutants": [asdict(m) for m in _combined(earlier, mutants)]}, indent=1))
+            target, code, 5 * baseline[mutant.target] + 120, args.out / "mutant.log"
+        )
+        print(
+            f"[{count}/{len(mutants)}] {mutant.status:8s} {mutant.target} #{mutant.id} line {mutant.line}: "
+            f"{mutant.description} ({mutant.seconds:.1f} s)",
+            flush=True,
+        )
+        (args.out / "results.json").write_text(
+            json.dumps(
+                {
+                    "baseline_seconds": baseline,
+                    "elapsed_seconds": time.perf_counter() - started,
+                    "mutants": [asdict(m) for m in _combined(earlier, mutants)],
+                },
+                indent=1,
+            )
+        )
     print(f"\n{len(mutants)} mutants in {time.perf_counter() - started:.0f} s\n")
     print(summary(_combined(earlier, mutants)))
     return 0

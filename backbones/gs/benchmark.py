@@ -19,9 +19,10 @@ benchmarks/raster_vs_opensplat.py).
 import math
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 import torch
 
@@ -78,8 +79,13 @@ def anchor_scene(gaussians: int, height: int, width: int, seed: int = 0) -> tupl
     sh[:, :1] = 0.5 * torch.randn(gaussians, 1, 3, generator=gen)
     sh[:, 1:] = 0.1 * torch.randn(gaussians, 15, 3, generator=gen)
     camera = Camera(torch.eye(4), fx=focal, fy=focal, cx=cx, cy=cy, width=width, height=height)
-    return camera, {"means": means, "log_scales": log_scales, "quats": quats, "opacity_logits": opacity_logits,
-                    "sh": sh}
+    return camera, {
+        "means": means,
+        "log_scales": log_scales,
+        "quats": quats,
+        "opacity_logits": opacity_logits,
+        "sh": sh,
+    }
 
 
 def _training_pass(camera: Camera, scene: dict, backend: Backend, channels: int) -> Callable[[], None]:
@@ -92,10 +98,20 @@ def _training_pass(camera: Camera, scene: dict, backend: Backend, channels: int)
     def step():
         for leaf in leaves.values():
             leaf.grad = None
-        projected = project_gaussians(leaves["means"], leaves["quats"], torch.exp(leaves["log_scales"]),
-                                      torch.sigmoid(leaves["opacity_logits"]), camera, backend=backend)
-        colors = (visible_colors(3, leaves["sh_dc"], leaves["sh_rest"], leaves["means"], projected.index,
-                                 camera.center, backend=backend) + 0.5).clamp_min(0)
+        projected = project_gaussians(
+            leaves["means"],
+            leaves["quats"],
+            torch.exp(leaves["log_scales"]),
+            torch.sigmoid(leaves["opacity_logits"]),
+            camera,
+            backend=backend,
+        )
+        colors = (
+            visible_colors(
+                3, leaves["sh_dc"], leaves["sh_rest"], leaves["means"], projected.index, camera.center, backend=backend
+            )
+            + 0.5
+        ).clamp_min(0)
         values = colors if channels == 3 else torch.cat([colors, 4.0 * colors], -1)  # HDR stand-in
         image, _ = rasterize(projected, values)
         (image * weights).sum().backward()
@@ -108,9 +124,16 @@ def _render_passes(camera: Camera, scene: dict) -> dict[str, Callable[[], None]]
     renders in eval mode (L2H-CC on the visible Gaussians' colours, one 6-channel composite)."""
     info = SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=[])
     backbone = GaussianBackbone(GaussianConfig(random_init_points=1), info)
-    backbone.load_gaussians({"means": scene["means"], "sh_dc": scene["sh"][:, :1], "sh_rest": scene["sh"][:, 1:],
-                             "log_scales": scene["log_scales"], "quats": scene["quats"],
-                             "opacity_logits": scene["opacity_logits"]})
+    backbone.load_gaussians(
+        {
+            "means": scene["means"],
+            "sh_dc": scene["sh"][:, :1],
+            "sh_rest": scene["sh"][:, 1:],
+            "log_scales": scene["log_scales"],
+            "quats": scene["quats"],
+            "opacity_logits": scene["opacity_logits"],
+        }
+    )
     backbone.active_sh_degree = 3
     l2h = L2HColorConverter().eval()
 
@@ -150,30 +173,55 @@ def bench_raster(out_dir: Path, sizes=SIZES, repeats: int = 7, with_torch_twin: 
     records = []
     for gaussians, height, width in sizes:
         camera, scene = anchor_scene(gaussians, height, width)
-        steps = {"kernel_fwd_bwd_3ch": _training_pass(camera, scene, "kernel", 3),
-                 "kernel_fwd_bwd_6ch": _training_pass(camera, scene, "kernel", 6),
-                 **_render_passes(camera, scene)}
+        steps = {
+            "kernel_fwd_bwd_3ch": _training_pass(camera, scene, "kernel", 3),
+            "kernel_fwd_bwd_6ch": _training_pass(camera, scene, "kernel", 6),
+            **_render_passes(camera, scene),
+        }
         if with_torch_twin:
             steps["torch_fwd_bwd_3ch"] = _training_pass(camera, scene, "torch", 3)
         seconds = interleaved_medians(steps, repeats)
-        record = {"gaussians": gaussians, "height": height, "width": width, "threads": torch.get_num_threads(),
-                  **{f"{name}_s": value for name, value in seconds.items()},
-                  "hdr_channels_cost": seconds["kernel_fwd_bwd_6ch"] / seconds["kernel_fwd_bwd_3ch"],
-                  "fps_ldr": 1.0 / seconds["render_ldr"], "fps_ldr_hdr": 1.0 / seconds["render_ldr_hdr"],
-                  "hdr_render_cost": seconds["render_ldr_hdr"] / seconds["render_ldr"]}
+        record = {
+            "gaussians": gaussians,
+            "height": height,
+            "width": width,
+            "threads": torch.get_num_threads(),
+            **{f"{name}_s": value for name, value in seconds.items()},
+            "hdr_channels_cost": seconds["kernel_fwd_bwd_6ch"] / seconds["kernel_fwd_bwd_3ch"],
+            "fps_ldr": 1.0 / seconds["render_ldr"],
+            "fps_ldr_hdr": 1.0 / seconds["render_ldr_hdr"],
+            "hdr_render_cost": seconds["render_ldr_hdr"] / seconds["render_ldr"],
+        }
         if with_torch_twin:
             record["twin_over_kernel"] = seconds["torch_fwd_bwd_3ch"] / seconds["kernel_fwd_bwd_3ch"]
         records.append(record)
 
     table = Table(title=f"Gaussian rasteriser, median of {repeats} ({torch.get_num_threads()} threads)")
-    for column in ("Gaussians", "size", "fwd+bwd 3 ch s", "fwd+bwd 6 ch s", "6 / 3 ch", "torch twin 3 ch s",
-                   "fps LDR", "fps LDR+HDR", "HDR render cost"):
+    for column in (
+        "Gaussians",
+        "size",
+        "fwd+bwd 3 ch s",
+        "fwd+bwd 6 ch s",
+        "6 / 3 ch",
+        "torch twin 3 ch s",
+        "fps LDR",
+        "fps LDR+HDR",
+        "HDR render cost",
+    ):
         table.add_column(column, justify="right")
     for r in records:
         twin = f"{r['torch_fwd_bwd_3ch_s']:.3f}" if "torch_fwd_bwd_3ch_s" in r else "-"
-        table.add_row(f"{r['gaussians']:,}", f"{r['width']}x{r['height']}", f"{r['kernel_fwd_bwd_3ch_s']:.4f}",
-                      f"{r['kernel_fwd_bwd_6ch_s']:.4f}", f"{r['hdr_channels_cost']:.3f}x", twin,
-                      f"{r['fps_ldr']:.0f}", f"{r['fps_ldr_hdr']:.0f}", f"{r['hdr_render_cost']:.3f}x")
+        table.add_row(
+            f"{r['gaussians']:,}",
+            f"{r['width']}x{r['height']}",
+            f"{r['kernel_fwd_bwd_3ch_s']:.4f}",
+            f"{r['kernel_fwd_bwd_6ch_s']:.4f}",
+            f"{r['hdr_channels_cost']:.3f}x",
+            twin,
+            f"{r['fps_ldr']:.0f}",
+            f"{r['fps_ldr_hdr']:.0f}",
+            f"{r['hdr_render_cost']:.3f}x",
+        )
     Console().print(table)
     write_json(Path(out_dir) / "raster.json", records)
     return records
@@ -190,5 +238,10 @@ def time_training_pass(gaussians: int, height: int, width: int, runs: int = 5) -
         start = time.perf_counter()
         step()
         times.append(time.perf_counter() - start)
-    return {"gaussians": gaussians, "height": height, "width": width, "fwd_bwd_s": statistics.median(times),
-            "threads": torch.get_num_threads()}
+    return {
+        "gaussians": gaussians,
+        "height": height,
+        "width": width,
+        "fwd_bwd_s": statistics.median(times),
+        "threads": torch.get_num_threads(),
+    }

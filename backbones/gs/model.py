@@ -16,7 +16,7 @@ from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, at_least, between
+from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
 
 
 @dataclass
@@ -55,10 +55,19 @@ class GaussianConfig:
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
 
     flag_rules: ClassVar = {
-        "sh_degree": between(0, 3), "sh_increase_every": at_least(1), "random_init_points": at_least(1),
-        "init_opacity": between(0, 1, low_open=True, high_open=True), "init_scale": POSITIVE, "lr_means": POSITIVE,
-        "lr_means_final": POSITIVE, "lr_sh_dc": POSITIVE, "lr_sh_rest": POSITIVE, "lr_opacities": POSITIVE,
-        "lr_scales": POSITIVE, "lr_quats": POSITIVE}
+        "sh_degree": between(0, 3),
+        "sh_increase_every": at_least(1),
+        "random_init_points": at_least(1),
+        "init_opacity": between(0, 1, low_open=True, high_open=True),
+        "init_scale": POSITIVE,
+        "lr_means": POSITIVE,
+        "lr_means_final": POSITIVE,
+        "lr_sh_dc": POSITIVE,
+        "lr_sh_rest": POSITIVE,
+        "lr_opacities": POSITIVE,
+        "lr_scales": POSITIVE,
+        "lr_quats": POSITIVE,
+    }
     """The strategy's flags follow its own table (McmcStrategy, DefaultStrategy)."""
 
 
@@ -69,8 +78,9 @@ def cpu_preset() -> GaussianConfig:
     Chosen by the sweep in benchmarks/gs_cpu_sweep.py on the built-in scenes (results in
     benchmarks/results/gs_cpu_sweep/); the same values serve every method.
     """
-    return GaussianConfig(init_opacity=0.5, init_scale=0.5, lr_sh_dc=0.01, lr_sh_rest=0.01 / 20,
-                          strategy=McmcStrategy())
+    return GaussianConfig(
+        init_opacity=0.5, init_scale=0.5, lr_sh_dc=0.01, lr_sh_rest=0.01 / 20, strategy=McmcStrategy()
+    )
 
 
 class GaussianBackbone(Backbone):
@@ -92,7 +102,7 @@ class GaussianBackbone(Backbone):
         means, colors = self._initial_points(config, scene)
         self.budget = config.strategy.budget(training_pixels) if training_pixels else means.shape[0]
         if means.shape[0] > self.budget:  # start within the budget: a random subset
-            keep = torch.randperm(means.shape[0])[:self.budget]
+            keep = torch.randperm(means.shape[0])[: self.budget]
             means, colors = means[keep], colors[keep]
         n = means.shape[0]
         self.means = nn.Parameter(means)
@@ -116,8 +126,10 @@ class GaussianBackbone(Backbone):
             colors = scene.point_colors.detach().reshape(-1, 3)
             colors = colors.float() / 255.0 if not colors.is_floating_point() else colors.float()
             if colors.shape[0] != points.shape[0]:
-                raise ValueError(f"scene.point_colors has {colors.shape[0]} rows for {points.shape[0]} points: "
-                                 "give one colour per point or none")
+                raise ValueError(
+                    f"scene.point_colors has {colors.shape[0]} rows for {points.shape[0]} points: "
+                    "give one colour per point or none"
+                )
             return points, colors.clamp(0, 1)
         low, high = scene.bounds_min.float(), scene.bounds_max.float()
         if not (high > low).all():
@@ -145,8 +157,14 @@ class GaussianBackbone(Backbone):
 
     def parameter_groups(self) -> list[dict]:
         c = self.config
-        rates = {"means": c.lr_means * self.scene_extent, "sh_dc": c.lr_sh_dc, "sh_rest": c.lr_sh_rest,
-                 "log_scales": c.lr_scales, "quats": c.lr_quats, "opacity_logits": c.lr_opacities}
+        rates = {
+            "means": c.lr_means * self.scene_extent,
+            "sh_dc": c.lr_sh_dc,
+            "sh_rest": c.lr_sh_rest,
+            "log_scales": c.lr_scales,
+            "quats": c.lr_quats,
+            "opacity_logits": c.lr_opacities,
+        }
         return [{"name": name, "params": [getattr(self, name)], "lr": rates[name]} for name in GAUSSIAN_PARAMETERS]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
@@ -170,12 +188,20 @@ class GaussianBackbone(Backbone):
         only when called).
         """
         scales = torch.exp(self.log_scales.clamp(-20, 20))  # finite, so culled rows never see inf * 0
-        projected = project_gaussians(self.means, self.quats, scales, torch.sigmoid(self.opacity_logits), camera,
-                                      backend=self.config.backend)
+        projected = project_gaussians(
+            self.means, self.quats, scales, torch.sigmoid(self.opacity_logits), camera, backend=self.config.backend
+        )
         if projected.means2d.requires_grad:
             projected.means2d.retain_grad()
-        raw_colors = visible_colors(self.active_sh_degree, self.sh_dc, self.sh_rest, self.means, projected.index,
-                                    camera.center, backend=self.config.backend)
+        raw_colors = visible_colors(
+            self.active_sh_degree,
+            self.sh_dc,
+            self.sh_rest,
+            self.means,
+            projected.index,
+            camera.center,
+            backend=self.config.backend,
+        )
         extras: dict[str, Any] = {"projected": projected}
 
         def composite(values: Tensor) -> Tensor:
@@ -189,8 +215,9 @@ class GaussianBackbone(Backbone):
             return depth / alpha.clamp_min(1e-6)
 
         extras["render_depth"] = render_depth
-        return LdrFeatures(colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite,
-                           extras=extras)
+        return LdrFeatures(
+            colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite, extras=extras
+        )
 
     @torch.no_grad()
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
@@ -198,8 +225,9 @@ class GaussianBackbone(Backbone):
         run the densification strategy (keeps Adam state aligned)."""
         interval = max(1, round(self.config.sh_increase_every * self.max_steps / REFERENCE_STEPS))
         self.active_sh_degree = max(self.active_sh_degree, min(self.config.sh_degree, (step + 1) // interval))
-        self.config.strategy.step_post_backward(self, optimizer, self.strategy_state, step, self.max_steps,
-                                                features.extras.get("projected"), self.budget)
+        self.config.strategy.step_post_backward(
+            self, optimizer, self.strategy_state, step, self.max_steps, features.extras.get("projected"), self.budget
+        )
 
     def load_gaussians(self, tensors: dict[str, Tensor]) -> None:
         """Replace all Gaussians (e.g. from load_ply); rebuild the optimiser afterwards."""
@@ -216,8 +244,10 @@ class GaussianBackbone(Backbone):
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree
         (a model loaded without it renders with degree 0) and the strategy's statistics."""
-        return {"active_sh_degree": self.active_sh_degree,
-                "strategy_state": {name: value.clone() for name, value in self.strategy_state.items()}}
+        return {
+            "active_sh_degree": self.active_sh_degree,
+            "strategy_state": {name: value.clone() for name, value in self.strategy_state.items()},
+        }
 
     def set_extra_state(self, state: dict) -> None:
         self.active_sh_degree = int(state["active_sh_degree"])
@@ -239,7 +269,7 @@ def _nearest_neighbour_distance(points: Tensor, k: int = 3, chunk: int = 1024) -
     k = min(k, n - 1)
     result = []
     for start in range(0, n, chunk):
-        d2 = torch.cdist(points[start:start + chunk], points).square()
+        d2 = torch.cdist(points[start : start + chunk], points).square()
         nearest = torch.topk(d2, k + 1, largest=False).values[:, 1:]  # drop the point itself
         result.append(nearest.mean(-1))
     return torch.cat(result).clamp_min(1e-7).sqrt()

@@ -11,9 +11,11 @@ from mono_hdr_plugin.data.io import read_ply_vertices, write_ply_vertices
 
 
 def _attribute_names(rest_bases: int) -> list[str]:
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(3 * rest_bases)]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(3 * rest_bases)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
 
 
 def export_ply(backbone, path: str | Path) -> Path:
@@ -25,10 +27,15 @@ def export_ply(backbone, path: str | Path) -> Path:
     means = backbone.means.detach().float()
     n = means.shape[0]
     sh_rest = backbone.sh_rest.detach().float()
-    columns = [means.numpy(), np.zeros((n, 3), np.float32), backbone.sh_dc.detach().float().reshape(n, 3).numpy(),
-               sh_rest.transpose(1, 2).reshape(n, -1).numpy(),
-               backbone.opacity_logits.detach().float().reshape(n, 1).numpy(),
-               backbone.log_scales.detach().float().numpy(), backbone.quats.detach().float().numpy()]
+    columns = [
+        means.numpy(),
+        np.zeros((n, 3), np.float32),
+        backbone.sh_dc.detach().float().reshape(n, 3).numpy(),
+        sh_rest.transpose(1, 2).reshape(n, -1).numpy(),
+        backbone.opacity_logits.detach().float().reshape(n, 1).numpy(),
+        backbone.log_scales.detach().float().numpy(),
+        backbone.quats.detach().float().numpy(),
+    ]
     data = np.concatenate(columns, axis=1).astype(np.float32)
     names = _attribute_names(sh_rest.shape[1])
     vertices = np.empty(n, dtype=[(name, "f4") for name in names])
@@ -45,8 +52,10 @@ def load_ply(path: str | Path) -> dict[str, Tensor]:
     names = set(vertex.data.dtype.names)
     required = {"x", "y", "z", "f_dc_0", "opacity", "scale_0", "rot_0"}
     if not required <= names:
-        raise ValueError(f"{path} lacks 3DGS attributes {sorted(required - names)}: "
-                         "is it a point cloud rather than a Gaussian splat file?")
+        raise ValueError(
+            f"{path} lacks 3DGS attributes {sorted(required - names)}: "
+            "is it a point cloud rather than a Gaussian splat file?"
+        )
 
     def stack(columns: list[str]) -> Tensor:
         return torch.from_numpy(np.stack([np.asarray(vertex[c], dtype=np.float32) for c in columns], -1))

@@ -53,15 +53,23 @@ class ProjectedGaussians:
 def _camera_arguments(camera: Camera) -> tuple:
     if camera.pixels is not None:
         raise ValueError("the Gaussian rasteriser renders whole images: pass a camera with pixels=None")
-    return (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
-            int(camera.width), int(camera.height), float(camera.near))
+    return (
+        float(camera.fx),
+        float(camera.fy),
+        float(camera.cx),
+        float(camera.cy),
+        int(camera.width),
+        int(camera.height),
+        float(camera.near),
+    )
 
 
 class _ProjectKernel(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, viewmat, intrinsics):
         index, radii, means2d, conics, depths, boxes = load_extension().project_forward(
-            means, quats, scales, opacities, viewmat, *intrinsics)
+            means, quats, scales, opacities, viewmat, *intrinsics
+        )
         ctx.save_for_backward(means, quats, scales, viewmat, index)
         ctx.intrinsics = intrinsics
         ctx.mark_non_differentiable(index, radii, boxes)
@@ -71,8 +79,16 @@ class _ProjectKernel(torch.autograd.Function):
     def backward(ctx, _v_index, _v_radii, v_means2d, v_conics, v_depths, _v_boxes):
         means, quats, scales, viewmat, index = ctx.saved_tensors
         v_means, v_quats, v_scales = load_extension().project_backward(
-            means, quats, scales, viewmat, index, *ctx.intrinsics,
-            v_means2d.contiguous(), v_conics.contiguous(), v_depths.contiguous())
+            means,
+            quats,
+            scales,
+            viewmat,
+            index,
+            *ctx.intrinsics,
+            v_means2d.contiguous(),
+            v_conics.contiguous(),
+            v_depths.contiguous(),
+        )
         return v_means, v_quats, v_scales, None, None, None
 
 
@@ -80,25 +96,33 @@ class _RasterizeKernel(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, width, height):
         image, transmittance, last = load_extension().rasterize_forward(
-            means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, width, height)
-        ctx.save_for_backward(means2d, conics, opacities, values, boxes, tile_offsets, tile_ids,
-                              transmittance, last)
+            means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, width, height
+        )
+        ctx.save_for_backward(means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, transmittance, last)
         return image, (1 - transmittance).unsqueeze(-1)
 
     @staticmethod
     def backward(ctx, v_image, v_alpha):
-        (means2d, conics, opacities, values, boxes, tile_offsets, tile_ids,
-         transmittance, last) = ctx.saved_tensors
+        (means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, transmittance, last) = ctx.saved_tensors
         v_means2d, v_conics, v_opacities, v_values = load_extension().rasterize_backward(
-            means2d, conics, opacities, values, boxes, tile_offsets, tile_ids, transmittance, last,
-            v_image.contiguous(), v_alpha.reshape(transmittance.shape).contiguous())
+            means2d,
+            conics,
+            opacities,
+            values,
+            boxes,
+            tile_offsets,
+            tile_ids,
+            transmittance,
+            last,
+            v_image.contiguous(),
+            v_alpha.reshape(transmittance.shape).contiguous(),
+        )
         return v_means2d, v_conics, v_opacities, v_values, None, None, None, None, None
 
 
 def _as_float32(name: str, tensor: Tensor, shape_tail: tuple[int, ...]) -> Tensor:
     if tensor.shape[1:] != shape_tail or tensor.dim() != 1 + len(shape_tail):
-        raise ValueError(f"{name} must have shape [N, {', '.join(map(str, shape_tail))}], "
-                         f"got {tuple(tensor.shape)}")
+        raise ValueError(f"{name} must have shape [N, {', '.join(map(str, shape_tail))}], got {tuple(tensor.shape)}")
     if tensor.device.type != "cpu":
         raise ValueError(f"{name} is on {tensor.device}: the CPU rasteriser needs CPU tensors")
     return tensor.float().contiguous()
@@ -109,8 +133,9 @@ def check_backend(backend: str) -> None:
         raise ValueError(f"backend must be 'kernel' or 'torch', got {backend!r}")
 
 
-def project_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
-                      camera: Camera, backend: Backend = "kernel") -> ProjectedGaussians:
+def project_gaussians(
+    means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, camera: Camera, backend: Backend = "kernel"
+) -> ProjectedGaussians:
     """Project 3D Gaussians into `camera` (EWA, 0.3 px^2 dilation), cull, and bin the visible ones.
 
     means [N,3] world positions; quats [N,4] rotations (w, x, y, z), any norm, zero = identity;
@@ -126,21 +151,37 @@ def project_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: T
     quats = _as_float32("quats", quats, (4,))
     scales = _as_float32("scales", scales, (3,))
     if opacities.shape != (n,) or quats.shape[0] != n or scales.shape[0] != n:
-        raise ValueError(f"means, quats, scales, opacities must share N={n}; got "
-                         f"{quats.shape[0]}, {scales.shape[0]}, {tuple(opacities.shape)}")
+        raise ValueError(
+            f"means, quats, scales, opacities must share N={n}; got "
+            f"{quats.shape[0]}, {scales.shape[0]}, {tuple(opacities.shape)}"
+        )
     opacities = opacities.float()
     viewmat = camera.w2c.float().contiguous()
     intrinsics = _camera_arguments(camera)
     if backend == "kernel":
         index, radii, means2d, conics, depths, boxes = _ProjectKernel.apply(
-            means, quats, scales, opacities.detach().contiguous(), viewmat, intrinsics)
+            means, quats, scales, opacities.detach().contiguous(), viewmat, intrinsics
+        )
         tile_offsets, tile_ids = load_extension().bin_tiles(boxes, depths.detach(), camera.width, camera.height)
     else:
         index, radii, means2d, conics, depths, boxes = reference.project_gaussians_torch(
-            means, quats, scales, opacities.detach(), viewmat, *intrinsics)
+            means, quats, scales, opacities.detach(), viewmat, *intrinsics
+        )
         tile_offsets, tile_ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-    return ProjectedGaussians(index, radii, means2d, conics, depths, opacities[index].contiguous(), boxes,
-                              tile_offsets, tile_ids, camera.width, camera.height, backend)
+    return ProjectedGaussians(
+        index,
+        radii,
+        means2d,
+        conics,
+        depths,
+        opacities[index].contiguous(),
+        boxes,
+        tile_offsets,
+        tile_ids,
+        camera.width,
+        camera.height,
+        backend,
+    )
 
 
 def rasterize(projected: ProjectedGaussians, values: Tensor) -> tuple[Tensor, Tensor]:
@@ -154,15 +195,31 @@ def rasterize(projected: ProjectedGaussians, values: Tensor) -> tuple[Tensor, Te
     visible = projected.index.shape[0]
     if values.dim() != 2 or values.shape[0] != visible:
         raise ValueError(f"values must have shape [V={visible}, C] (the visible Gaussians), got {tuple(values.shape)}")
-    args = (projected.means2d, projected.conics, projected.opacities, values.float().contiguous(),
-            projected.boxes, projected.tile_offsets, projected.tile_ids, projected.width, projected.height)
+    args = (
+        projected.means2d,
+        projected.conics,
+        projected.opacities,
+        values.float().contiguous(),
+        projected.boxes,
+        projected.tile_offsets,
+        projected.tile_ids,
+        projected.width,
+        projected.height,
+    )
     if projected.backend == "kernel":
         return _RasterizeKernel.apply(*args)
     return reference.rasterize_tiles_torch(*args)
 
 
-def render_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, values: Tensor,
-                     camera: Camera, backend: Backend = "kernel") -> tuple[Tensor, Tensor, ProjectedGaussians]:
+def render_gaussians(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    values: Tensor,
+    camera: Camera,
+    backend: Backend = "kernel",
+) -> tuple[Tensor, Tensor, ProjectedGaussians]:
     """project_gaussians + rasterize of values [N, C] given for every Gaussian: image [H,W,C],
     alpha [H,W,1] and the projection."""
     if values.dim() != 2 or values.shape[0] != means.shape[0]:

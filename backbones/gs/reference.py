@@ -30,11 +30,20 @@ def quaternion_to_rotation(quats: Tensor) -> Tensor:
     identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=quats.dtype)
     safe = torch.where(usable, quats, identity)
     w, x, y, z = (safe / safe.norm(dim=-1, keepdim=True)).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(-1, 3, 3)
 
 
 def _project(means, quats, scales, viewmat, fx, fy, cx, cy, width, height):
@@ -57,9 +66,20 @@ def _project(means, quats, scales, viewmat, fx, fy, cx, cy, width, height):
     return t, means2d, cov
 
 
-def project_gaussians_torch(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
-                            viewmat: Tensor, fx: float, fy: float, cx: float, cy: float,
-                            width: int, height: int, near: float) -> tuple[Tensor, ...]:
+def project_gaussians_torch(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmat: Tensor,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    near: float,
+) -> tuple[Tensor, ...]:
     """Torch twin of the kernel's projection, culling and compaction.
 
     means [N,3], quats [N,4] (w,x,y,z), scales [N,3] (linear), opacities [N] in (0, 1),
@@ -74,8 +94,14 @@ def project_gaussians_torch(means: Tensor, quats: Tensor, scales: Tensor, opacit
         a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
         det = a * c - b * b
         conic = torch.stack([c / det, -b / det, a / det], -1)
-        visible = (torch.isfinite(t).all(-1) & (t[:, 2] >= near) & (det > 0) & torch.isfinite(det)
-                   & torch.isfinite(conic).all(-1) & torch.isfinite(means2d).all(-1))
+        visible = (
+            torch.isfinite(t).all(-1)
+            & (t[:, 2] >= near)
+            & (det > 0)
+            & torch.isfinite(det)
+            & torch.isfinite(conic).all(-1)
+            & torch.isfinite(means2d).all(-1)
+        )
         mid = 0.5 * (a + c)
         sigma = torch.sqrt(mid + torch.sqrt((mid * mid - det).clamp_min(0.1)))
         reach2 = 2.0 * torch.log(255.0 * opacities)
@@ -120,8 +146,10 @@ def bin_tiles_torch(boxes: Tensor, depths: Tensor, width: int, height: int) -> t
         members = members[torch.argsort(depths[members].detach(), stable=True)]
         ids.append(members)
         offsets.append(offsets[-1] + members.numel())
-    return (torch.tensor(offsets, dtype=torch.int32),
-            torch.cat(ids).to(torch.int32) if ids else torch.zeros(0, dtype=torch.int32))
+    return (
+        torch.tensor(offsets, dtype=torch.int32),
+        torch.cat(ids).to(torch.int32) if ids else torch.zeros(0, dtype=torch.int32),
+    )
 
 
 def _composite(power: Tensor, opacities: Tensor, values: Tensor, allowed: Tensor) -> tuple[Tensor, Tensor]:
@@ -147,9 +175,17 @@ def _power(means2d: Tensor, conics: Tensor, pixels: Tensor) -> Tensor:
     return -0.5 * (conics[:, 0] * dx * dx + conics[:, 2] * dy * dy) - conics[:, 1] * dx * dy
 
 
-def rasterize_tiles_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, values: Tensor,
-                          boxes: Tensor, tile_offsets: Tensor, tile_ids: Tensor,
-                          width: int, height: int) -> tuple[Tensor, Tensor]:
+def rasterize_tiles_torch(
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    values: Tensor,
+    boxes: Tensor,
+    tile_offsets: Tensor,
+    tile_ids: Tensor,
+    width: int,
+    height: int,
+) -> tuple[Tensor, Tensor]:
     """Torch twin of the kernel's compositing, one tile at a time.
 
     means2d [N,2], conics [N,3], opacities [N], values [N,C], boxes [N,4], tile lists from
@@ -163,16 +199,22 @@ def rasterize_tiles_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, va
         if start == end:
             continue
         x0, y0 = (tile % tiles_x) * TILE_SIZE, (tile // tiles_x) * TILE_SIZE
-        ys, xs = torch.meshgrid(torch.arange(y0, min(y0 + TILE_SIZE, height)),
-                                torch.arange(x0, min(x0 + TILE_SIZE, width)), indexing="ij")
+        ys, xs = torch.meshgrid(
+            torch.arange(y0, min(y0 + TILE_SIZE, height)), torch.arange(x0, min(x0 + TILE_SIZE, width)), indexing="ij"
+        )
         xs, ys = xs.reshape(-1), ys.reshape(-1)
         ids = tile_ids[start:end].long()
         box = boxes[ids].long()
-        inside = ((xs[:, None] >= box[:, 0]) & (xs[:, None] < box[:, 2])
-                  & (ys[:, None] >= box[:, 1]) & (ys[:, None] < box[:, 3]))
+        inside = (
+            (xs[:, None] >= box[:, 0])
+            & (xs[:, None] < box[:, 2])
+            & (ys[:, None] >= box[:, 1])
+            & (ys[:, None] < box[:, 3])
+        )
         pixels = torch.stack([xs, ys], -1).to(means2d.dtype) + 0.5
-        colors, transmittance = _composite(_power(means2d[ids], conics[ids], pixels), opacities[ids],
-                                           values[ids], inside)
+        colors, transmittance = _composite(
+            _power(means2d[ids], conics[ids], pixels), opacities[ids], values[ids], inside
+        )
         pixel_index.append(ys * width + xs)
         tile_colors.append(colors)
         tile_transmittance.append(transmittance)
@@ -185,8 +227,9 @@ def rasterize_tiles_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, va
     return image.reshape(height, width, channels), (1 - transmittance).reshape(height, width, 1)
 
 
-def rasterize_dense_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, values: Tensor,
-                          depths: Tensor, width: int, height: int) -> tuple[Tensor, Tensor]:
+def rasterize_dense_torch(
+    means2d: Tensor, conics: Tensor, opacities: Tensor, values: Tensor, depths: Tensor, width: int, height: int
+) -> tuple[Tensor, Tensor]:
     """Brute-force twin: every pixel against every (visible) Gaussian, in depth order.
 
     Same arguments as `rasterize_tiles_torch` but no tiles or boxes. Memory is [H*W, V]:
@@ -196,6 +239,5 @@ def rasterize_dense_torch(means2d: Tensor, conics: Tensor, opacities: Tensor, va
     ys, xs = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
     pixels = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).to(means2d.dtype) + 0.5
     power = _power(means2d[order], conics[order], pixels)
-    colors, transmittance = _composite(power, opacities[order], values[order],
-                                       torch.ones_like(power, dtype=torch.bool))
+    colors, transmittance = _composite(power, opacities[order], values[order], torch.ones_like(power, dtype=torch.bool))
     return colors.reshape(height, width, -1), (1 - transmittance).reshape(height, width, 1)

@@ -5,10 +5,16 @@ from torch import Tensor
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-         0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
 
 
 def num_sh_bases(degree: int) -> int:
@@ -46,18 +52,26 @@ def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
     if degree == 1:
         return result
     xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-    result = (result + SH_C2[0] * xy * coeffs[:, 4] + SH_C2[1] * yz * coeffs[:, 5]
-              + SH_C2[2] * (2.0 * zz - xx - yy) * coeffs[:, 6] + SH_C2[3] * xz * coeffs[:, 7]
-              + SH_C2[4] * (xx - yy) * coeffs[:, 8])
+    result = (
+        result
+        + SH_C2[0] * xy * coeffs[:, 4]
+        + SH_C2[1] * yz * coeffs[:, 5]
+        + SH_C2[2] * (2.0 * zz - xx - yy) * coeffs[:, 6]
+        + SH_C2[3] * xz * coeffs[:, 7]
+        + SH_C2[4] * (xx - yy) * coeffs[:, 8]
+    )
     if degree == 2:
         return result
-    return (result + SH_C3[0] * y * (3.0 * xx - yy) * coeffs[:, 9]
-            + SH_C3[1] * xy * z * coeffs[:, 10]
-            + SH_C3[2] * y * (4.0 * zz - xx - yy) * coeffs[:, 11]
-            + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * coeffs[:, 12]
-            + SH_C3[4] * x * (4.0 * zz - xx - yy) * coeffs[:, 13]
-            + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
-            + SH_C3[6] * x * (xx - 3.0 * yy) * coeffs[:, 15])
+    return (
+        result
+        + SH_C3[0] * y * (3.0 * xx - yy) * coeffs[:, 9]
+        + SH_C3[1] * xy * z * coeffs[:, 10]
+        + SH_C3[2] * y * (4.0 * zz - xx - yy) * coeffs[:, 11]
+        + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * coeffs[:, 12]
+        + SH_C3[4] * x * (4.0 * zz - xx - yy) * coeffs[:, 13]
+        + SH_C3[5] * z * (xx - yy) * coeffs[:, 14]
+        + SH_C3[6] * x * (xx - 3.0 * yy) * coeffs[:, 15]
+    )
 
 
 def view_directions(means: Tensor, camera_center: Tensor) -> Tensor:
@@ -80,13 +94,21 @@ class _ShKernel(torch.autograd.Function):
         from backbones.gs._extension import load_extension
 
         sh_dc, sh_rest, means, index, center = ctx.saved_tensors
-        v_dc, v_rest, v_means = load_extension().sh_backward(sh_dc, sh_rest, means, index, center, ctx.degree,
-                                                             v_colors.contiguous())
+        v_dc, v_rest, v_means = load_extension().sh_backward(
+            sh_dc, sh_rest, means, index, center, ctx.degree, v_colors.contiguous()
+        )
         return v_dc, v_rest, v_means, None, None, None
 
 
-def visible_colors(degree: int, sh_dc: Tensor, sh_rest: Tensor, means: Tensor, index: Tensor,
-                   camera_center: Tensor, backend: str = "kernel") -> Tensor:
+def visible_colors(
+    degree: int,
+    sh_dc: Tensor,
+    sh_rest: Tensor,
+    means: Tensor,
+    index: Tensor,
+    camera_center: Tensor,
+    backend: str = "kernel",
+) -> Tensor:
     """SH colours [V, 3] (without the +0.5) of the Gaussians `index` [V] seen from `camera_center`.
 
     sh_dc [N, 1, 3], sh_rest [N, K - 1, 3], means [N, 3]. Differentiable w.r.t. the
@@ -97,7 +119,13 @@ def visible_colors(degree: int, sh_dc: Tensor, sh_rest: Tensor, means: Tensor, i
     if sh_rest.shape[1] + 1 < num_sh_bases(degree):
         raise ValueError(f"degree {degree} needs {num_sh_bases(degree)} SH bases, got {sh_rest.shape[1] + 1}")
     if backend == "kernel":
-        return _ShKernel.apply(sh_dc.float().contiguous(), sh_rest.float().contiguous(), means.float().contiguous(),
-                               index.contiguous(), camera_center.float().contiguous(), degree)
+        return _ShKernel.apply(
+            sh_dc.float().contiguous(),
+            sh_rest.float().contiguous(),
+            means.float().contiguous(),
+            index.contiguous(),
+            camera_center.float().contiguous(),
+            degree,
+        )
     coeffs = torch.cat([sh_dc[index], sh_rest[index]], 1)
     return eval_sh(degree, coeffs, view_directions(means[index], camera_center))

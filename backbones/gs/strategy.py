@@ -18,9 +18,10 @@ without touching the state.
 """
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import torch
 from torch import Tensor
@@ -92,10 +93,18 @@ class McmcStrategy:
     """Weight of the mean scale (scene units) in the loss."""
 
     flag_rules: ClassVar = {
-        "max_gaussians": at_least(1), "gaussians_per_pixel": POSITIVE, "grow_fraction": NON_NEGATIVE,
-        "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE, "refine_every": at_least(1),
-        "min_refine_every": at_least(1), "min_opacity": between(0, 1, high_open=True), "noise_lr": NON_NEGATIVE,
-        "opacity_reg": NON_NEGATIVE, "scale_reg": NON_NEGATIVE}
+        "max_gaussians": at_least(1),
+        "gaussians_per_pixel": POSITIVE,
+        "grow_fraction": NON_NEGATIVE,
+        "refine_start": NON_NEGATIVE,
+        "refine_stop": NON_NEGATIVE,
+        "refine_every": at_least(1),
+        "min_refine_every": at_least(1),
+        "min_opacity": between(0, 1, high_open=True),
+        "noise_lr": NON_NEGATIVE,
+        "opacity_reg": NON_NEGATIVE,
+        "scale_reg": NON_NEGATIVE,
+    }
 
     def budget(self, training_pixels: int) -> int:
         """The most Gaussians this strategy ever holds, for `training_pixels` pixels of training views."""
@@ -108,8 +117,9 @@ class McmcStrategy:
         return max(1, int(self.gaussians_per_pixel * training_pixels))
 
     def schedule(self, max_steps: int) -> RefineSchedule:
-        return RefineSchedule.scaled(max_steps, self.refine_start, self.refine_stop, self.refine_every,
-                                     self.min_refine_every)
+        return RefineSchedule.scaled(
+            max_steps, self.refine_start, self.refine_stop, self.refine_every, self.min_refine_every
+        )
 
     def initial_state(self, n: int) -> dict[str, Tensor]:
         """MCMC gathers no per-Gaussian statistics."""
@@ -125,8 +135,16 @@ class McmcStrategy:
         return terms
 
     @torch.no_grad()
-    def step_post_backward(self, model, optimizer: torch.optim.Optimizer, state: dict[str, Tensor], step: int,
-                           max_steps: int, projected, budget: int) -> None:
+    def step_post_backward(
+        self,
+        model,
+        optimizer: torch.optim.Optimizer,
+        state: dict[str, Tensor],
+        step: int,
+        max_steps: int,
+        projected,
+        budget: int,
+    ) -> None:
         """After the optimiser step: refine when scheduled, then add position noise."""
         if self.schedule(max_steps).due(step):
             self.relocate(model, optimizer)
@@ -217,7 +235,9 @@ def _relocation_coefficients(max_copies: int = 51) -> Tensor:
     table = torch.zeros(max_copies, max_copies, dtype=torch.float64)
     for copies in range(1, max_copies + 1):
         for k in range(copies):
-            table[copies - 1, k] = sum(math.comb(i - 1, k) for i in range(k + 1, copies + 1)) * (-1) ** k / math.sqrt(k + 1)
+            table[copies - 1, k] = (
+                sum(math.comb(i - 1, k) for i in range(k + 1, copies + 1)) * (-1) ** k / math.sqrt(k + 1)
+            )
     return table
 
 
@@ -262,10 +282,17 @@ class DefaultStrategy:
     """After the first opacity reset, prune Gaussians wider than this many pixels."""
 
     flag_rules: ClassVar = {
-        "max_gaussians": at_least(1), "refine_start": NON_NEGATIVE, "refine_stop": NON_NEGATIVE,
-        "refine_every": at_least(1), "min_refine_every": at_least(1), "reset_opacity_every": at_least(1),
-        "grad_threshold": NON_NEGATIVE, "percent_dense": POSITIVE, "prune_opacity": between(0, 1, high_open=True),
-        "max_screen_size": POSITIVE}
+        "max_gaussians": at_least(1),
+        "refine_start": NON_NEGATIVE,
+        "refine_stop": NON_NEGATIVE,
+        "refine_every": at_least(1),
+        "min_refine_every": at_least(1),
+        "reset_opacity_every": at_least(1),
+        "grad_threshold": NON_NEGATIVE,
+        "percent_dense": POSITIVE,
+        "prune_opacity": between(0, 1, high_open=True),
+        "max_screen_size": POSITIVE,
+    }
 
     def budget(self, training_pixels: int) -> int:
         if self.max_gaussians < 1:
@@ -273,8 +300,9 @@ class DefaultStrategy:
         return self.max_gaussians
 
     def schedule(self, max_steps: int) -> RefineSchedule:
-        return RefineSchedule.scaled(max_steps, self.refine_start, self.refine_stop, self.refine_every,
-                                     self.min_refine_every)
+        return RefineSchedule.scaled(
+            max_steps, self.refine_start, self.refine_stop, self.refine_every, self.min_refine_every
+        )
 
     def reset_every(self, max_steps: int) -> int:
         return max(self.schedule(max_steps).every, round(self.reset_opacity_every * max_steps / REFERENCE_STEPS))
@@ -288,8 +316,16 @@ class DefaultStrategy:
         return {}
 
     @torch.no_grad()
-    def step_post_backward(self, model, optimizer: torch.optim.Optimizer, state: dict[str, Tensor], step: int,
-                           max_steps: int, projected, budget: int) -> None:
+    def step_post_backward(
+        self,
+        model,
+        optimizer: torch.optim.Optimizer,
+        state: dict[str, Tensor],
+        step: int,
+        max_steps: int,
+        projected,
+        budget: int,
+    ) -> None:
         """Accumulate this step's screen-space gradients, then refine/reset when scheduled.
 
         projected: the step's ProjectedGaussians, whose means2d.grad holds d loss / d pixel
@@ -329,8 +365,13 @@ class DefaultStrategy:
         small = torch.exp(model.log_scales).amax(-1) <= self.percent_dense * scene_extent
         clone, split = high & small, high & ~small
         if clone.any():
-            edit_gaussians(model, optimizer, GAUSSIAN_PARAMETERS, lambda name, p: torch.cat([p, p[clone]]),
-                           lambda name, v: torch.cat([v, torch.zeros_like(v[clone])]))
+            edit_gaussians(
+                model,
+                optimizer,
+                GAUSSIAN_PARAMETERS,
+                lambda name, p: torch.cat([p, p[clone]]),
+                lambda name, v: torch.cat([v, torch.zeros_like(v[clone])]),
+            )
             split = torch.cat([split, torch.zeros(int(clone.sum()), dtype=torch.bool)])
         if split.any():
             self._split(model, optimizer, split)
@@ -346,8 +387,13 @@ class DefaultStrategy:
             added = new_rows[name] if name in new_rows else p[split].repeat(2, *[1] * (p.dim() - 1))
             return torch.cat([p[~split], added])
 
-        edit_gaussians(model, optimizer, GAUSSIAN_PARAMETERS, edit,
-                       lambda name, v: torch.cat([v[~split], torch.zeros_like(v[split]).repeat(2, *[1] * (v.dim() - 1))]))
+        edit_gaussians(
+            model,
+            optimizer,
+            GAUSSIAN_PARAMETERS,
+            edit,
+            lambda name, v: torch.cat([v[~split], torch.zeros_like(v[split]).repeat(2, *[1] * (v.dim() - 1))]),
+        )
 
     def _prune(self, model, optimizer, state, prune_big: bool) -> None:
         n = model.means.shape[0]
@@ -359,20 +405,32 @@ class DefaultStrategy:
         if remove.all():  # never prune to an empty model: keep the most opaque Gaussian
             remove[model.opacity_logits.argmax()] = False
         if remove.any():
-            edit_gaussians(model, optimizer, GAUSSIAN_PARAMETERS, lambda name, p: p[~remove], lambda name, v: v[~remove])
+            edit_gaussians(
+                model, optimizer, GAUSSIAN_PARAMETERS, lambda name, p: p[~remove], lambda name, v: v[~remove]
+            )
 
     def _reset_opacities(self, model, optimizer) -> None:
         """Clamp opacities to <= 0.01 and forget their Adam moments, as 3DGS does."""
         ceiling = math.log(0.01 / 0.99)
-        edit_gaussians(model, optimizer, ("opacity_logits",), lambda name, p: p.clamp(max=ceiling),
-                       lambda name, v: torch.zeros_like(v))
+        edit_gaussians(
+            model,
+            optimizer,
+            ("opacity_logits",),
+            lambda name, p: p.clamp(max=ceiling),
+            lambda name, v: torch.zeros_like(v),
+        )
 
 
 Strategy = McmcStrategy | DefaultStrategy
 
 
-def edit_gaussians(model, optimizer: torch.optim.Optimizer, names: tuple[str, ...],
-                   edit_param: Callable[[str, Tensor], Tensor], edit_moment: Callable[[str, Tensor], Tensor]) -> None:
+def edit_gaussians(
+    model,
+    optimizer: torch.optim.Optimizer,
+    names: tuple[str, ...],
+    edit_param: Callable[[str, Tensor], Tensor],
+    edit_moment: Callable[[str, Tensor], Tensor],
+) -> None:
     """Swap each named parameter of `model` for edit_param(name, data) and its Adam moments for
     edit_moment(name, moment), keeping the optimiser's per-parameter state attached."""
     for group in optimizer.param_groups:
@@ -393,5 +451,6 @@ def edit_gaussians(model, optimizer: torch.optim.Optimizer, names: tuple[str, ..
     for name in names:  # parameters the optimiser does not hold (frozen) still change shape
         current = getattr(model, name)
         if id(current) not in held:
-            setattr(model, name, torch.nn.Parameter(edit_param(name, current.detach()),
-                                                    requires_grad=current.requires_grad))
+            setattr(
+                model, name, torch.nn.Parameter(edit_param(name, current.detach()), requires_grad=current.requires_grad)
+            )

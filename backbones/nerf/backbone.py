@@ -20,6 +20,7 @@ from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf,
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 
+
 class NerfBackbone(Backbone):
     """Neural radiance field: a grid field made for a CPU (preset cpu) or the official MLP (preset paper).
 
@@ -41,11 +42,19 @@ class NerfBackbone(Backbone):
         super().__init__(config, scene)
         bounds_min = torch.as_tensor(scene.bounds_min, dtype=torch.float32).reshape(-1)
         bounds_max = torch.as_tensor(scene.bounds_max, dtype=torch.float32).reshape(-1)
-        if bounds_min.shape != (3,) or bounds_max.shape != (3,) or not (
-                torch.isfinite(bounds_min).all() and torch.isfinite(bounds_max).all()
-                and (bounds_max > bounds_min).all()):
-            raise ValueError(f"SceneInfo.bounds_min/bounds_max must be finite 3-vectors with max > min, "
-                             f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds")
+        if (
+            bounds_min.shape != (3,)
+            or bounds_max.shape != (3,)
+            or not (
+                torch.isfinite(bounds_min).all()
+                and torch.isfinite(bounds_max).all()
+                and (bounds_max > bounds_min).all()
+            )
+        ):
+            raise ValueError(
+                f"SceneInfo.bounds_min/bounds_max must be finite 3-vectors with max > min, "
+                f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds"
+            )
         if len(config.background) != 3:
             raise ValueError(f"NerfConfig.background must be 3 numbers (RGB), got {config.background}")
         if config.render_chunk < 1:
@@ -63,17 +72,23 @@ class NerfBackbone(Backbone):
         self.converter_lr = field.lr if isinstance(field, MlpFieldConfig) else field.mlp_lr
         if isinstance(field, MlpFieldConfig):
             if field.coarse_samples < 3 or field.fine_samples < 1:
-                raise ValueError("the paper field needs coarse_samples >= 3 and fine_samples >= 1, "
-                                 f"got {field.coarse_samples} and {field.fine_samples}")
+                raise ValueError(
+                    "the paper field needs coarse_samples >= 3 and fine_samples >= 1, "
+                    f"got {field.coarse_samples} and {field.fine_samples}"
+                )
             self.coarse_field = MlpRadianceField(field)
             self.fine_field = MlpRadianceField(field)
         elif isinstance(field, GridFieldConfig):
             if field.max_samples_per_ray < 1 or not field.min_step > 0:
-                raise ValueError("the grid field needs max_samples_per_ray >= 1 and min_step > 0, got "
-                                 f"{field.max_samples_per_ray} and {field.min_step}")
+                raise ValueError(
+                    "the grid field needs max_samples_per_ray >= 1 and min_step > 0, got "
+                    f"{field.max_samples_per_ray} and {field.min_step}"
+                )
             if not 1 <= field.rays_per_step <= field.max_rays_per_step or field.samples_per_step < 1:
-                raise ValueError("the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
-                                 f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}")
+                raise ValueError(
+                    "the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
+                    f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}"
+                )
             load_extension()  # built (or loaded) here, so a first build is never counted as training time
             self.grid_field = GridRadianceField(field)
             self.occupancy = OccupancyGrid(field.occupancy_resolution)
@@ -83,7 +98,9 @@ class NerfBackbone(Backbone):
             self.register_load_state_dict_post_hook(lambda module, keys: module._sync_pixel_batch())
             self._last_batch: tuple[int, int] | None = None
         else:
-            raise ValueError(f"NerfConfig.field must be a GridFieldConfig or MlpFieldConfig, got {type(field).__name__}")
+            raise ValueError(
+                f"NerfConfig.field must be a GridFieldConfig or MlpFieldConfig, got {type(field).__name__}"
+            )
 
     @classmethod
     def presets(cls) -> dict[str, NerfConfig]:
@@ -105,13 +122,24 @@ class NerfBackbone(Backbone):
     def parameter_groups(self) -> list[dict]:
         field = self.config.field
         if not self.uses_grid:
-            return [{"name": "nerf_mlp", "params": list(self.coarse_field.parameters())
-                     + list(self.fine_field.parameters()), "lr": field.lr}]
+            return [
+                {
+                    "name": "nerf_mlp",
+                    "params": list(self.coarse_field.parameters()) + list(self.fine_field.parameters()),
+                    "lr": field.lr,
+                }
+            ]
         grid = self.grid_field
         # Instant-NGP's Adam: beta2 = 0.99, so rarely-hit grid cells follow their recent gradients.
-        return [{"name": "nerf_grid", "params": [grid.table], "lr": field.grid_lr, "betas": (0.9, 0.99)},
-                {"name": "nerf_mlp", "params": list(grid.density_mlp.parameters())
-                 + list(grid.color_mlp.parameters()), "lr": field.mlp_lr, "betas": (0.9, 0.99)}]
+        return [
+            {"name": "nerf_grid", "params": [grid.table], "lr": field.grid_lr, "betas": (0.9, 0.99)},
+            {
+                "name": "nerf_mlp",
+                "params": list(grid.density_mlp.parameters()) + list(grid.color_mlp.parameters()),
+                "lr": field.mlp_lr,
+                "betas": (0.9, 0.99),
+            },
+        ]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """paper: NeRF's lr * factor ** (step / decay_steps); cpu: decays to lr_final_factor at the
@@ -185,44 +213,56 @@ class NerfBackbone(Backbone):
         render = self._render_grid if self.uses_grid else self._render_paper
         return render(origins, directions, camera, output_shape, self.stochastic_sampling)
 
-    def _features(self, density: Tensor, raw_color: Tensor, t: Tensor, t_far: Tensor,
-                  output_shape: tuple[int, ...]) -> LdrFeatures:
+    def _features(
+        self, density: Tensor, raw_color: Tensor, t: Tensor, t_far: Tensor, output_shape: tuple[int, ...]
+    ) -> LdrFeatures:
         weights = compositing_weights(density, sample_deltas(t, t_far) / self.scene_scale)
-        extras = {"weights": weights, "sample_distances": t,
-                  "depth": (weights * t).sum(dim=-1).reshape(output_shape),
-                  "alpha": weights.sum(dim=-1).reshape(output_shape)}
-        return LdrFeatures(colors=torch.sigmoid(raw_color), raw_colors=raw_color,
-                           composite=make_composite(weights, output_shape, self.background), extras=extras)
+        extras = {
+            "weights": weights,
+            "sample_distances": t,
+            "depth": (weights * t).sum(dim=-1).reshape(output_shape),
+            "alpha": weights.sum(dim=-1).reshape(output_shape),
+        }
+        return LdrFeatures(
+            colors=torch.sigmoid(raw_color),
+            raw_colors=raw_color,
+            composite=make_composite(weights, output_shape, self.background),
+            extras=extras,
+        )
 
     def _query(self, field, origins: Tensor, directions: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Field at every sample: density [N, S], raw colour [N, S, 3]."""
         positions = self.normalise(origins[:, None] + t[..., None] * directions[:, None])
         rays, samples = t.shape
-        density, raw_color = field(positions.reshape(-1, 3),
-                                   directions[:, None].expand(rays, samples, 3).reshape(-1, 3))
+        density, raw_color = field(
+            positions.reshape(-1, 3), directions[:, None].expand(rays, samples, 3).reshape(-1, 3)
+        )
         return density.reshape(rays, samples), raw_color.reshape(rays, samples, 3)
 
-    def _render_paper(self, origins: Tensor, directions: Tensor, camera: Camera,
-                      output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
+    def _render_paper(
+        self, origins: Tensor, directions: Tensor, camera: Camera, output_shape: tuple[int, ...], stochastic: bool
+    ) -> LdrFeatures:
         paper = self.config.field
         bounds = (self.bounds_min, self.bounds_max) if paper.clip_to_bounds else None
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, bounds)
         t_coarse = sample_stratified(t_near, t_far, paper.coarse_samples, perturb=stochastic)
-        coarse = self._features(*self._query(self.coarse_field, origins, directions, t_coarse),
-                                t_coarse, t_far, output_shape)
+        coarse = self._features(
+            *self._query(self.coarse_field, origins, directions, t_coarse), t_coarse, t_far, output_shape
+        )
         # NeRF's importance sampling: bins between coarse samples, interior weights, no gradient.
         with torch.no_grad():
             mids = 0.5 * (t_coarse[:, 1:] + t_coarse[:, :-1])
-            t_importance = sample_pdf(mids, coarse.extras["weights"][:, 1:-1].detach(), paper.fine_samples,
-                                      deterministic=not stochastic)
+            t_importance = sample_pdf(
+                mids, coarse.extras["weights"][:, 1:-1].detach(), paper.fine_samples, deterministic=not stochastic
+            )
             t_fine = torch.sort(torch.cat([t_coarse, t_importance], dim=-1), dim=-1).values
-        fine = self._features(*self._query(self.fine_field, origins, directions, t_fine), t_fine, t_far,
-                              output_shape)
+        fine = self._features(*self._query(self.fine_field, origins, directions, t_fine), t_fine, t_far, output_shape)
         fine.auxiliary = [coarse]
         return fine
 
-    def march(self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
-              ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    def march(
+        self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Marched samples of the cpu field, S = max_samples_per_ray per ray at most.
 
         Returns t, delta [N, S] (world units; delta 0 past a ray's samples, where t stays at the
@@ -232,17 +272,30 @@ class NerfBackbone(Backbone):
         field = self.config.field
         t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, (self.bounds_min, self.bounds_max))
         samples = field.max_samples_per_ray
-        fraction = (torch.rand(origins.shape[0], samples, device=origins.device) if stochastic
-                    else torch.full((origins.shape[0], samples), 0.5, device=origins.device))
-        t, delta, counts = march_rays(origins, directions, t_near, t_far, self.occupancy.occupied,
-                                      self.scene_center, self.scene_scale, field.min_step * self.scene_scale,
-                                      samples, fraction if stochastic else None)
+        fraction = (
+            torch.rand(origins.shape[0], samples, device=origins.device)
+            if stochastic
+            else torch.full((origins.shape[0], samples), 0.5, device=origins.device)
+        )
+        t, delta, counts = march_rays(
+            origins,
+            directions,
+            t_near,
+            t_far,
+            self.occupancy.occupied,
+            self.scene_center,
+            self.scene_scale,
+            field.min_step * self.scene_scale,
+            samples,
+            fraction if stochastic else None,
+        )
         real = torch.arange(samples, device=counts.device) < counts[:, None]
         t = torch.where(real, t, t_far[:, None].expand_as(t))
         return t, delta, real.reshape(-1).nonzero()[:, 0], fraction
 
-    def place_samples(self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
-                      ) -> tuple[Tensor, Tensor, Tensor]:
+    def place_samples(
+        self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """Where the cpu field is shaded: marched samples in occupied cells, then a density pass
         without gradients places importance_samples per ray from their weights (or, with 0, keeps
         the marched samples in front of early_stop_transmittance while training).
@@ -252,24 +305,31 @@ class NerfBackbone(Backbone):
         """
         field = self.config.field
         t, delta, flat, fraction = self.march(origins, directions, camera, stochastic)
-        wants_proposal = field.importance_samples > 0 or (torch.is_grad_enabled() and field.early_stop_transmittance > 0)
+        wants_proposal = field.importance_samples > 0 or (
+            torch.is_grad_enabled() and field.early_stop_transmittance > 0
+        )
         if not wants_proposal or not flat.numel():
             return t, delta, flat
         ray_of = flat // t.shape[1]
         with torch.no_grad():
             positions = self.normalise(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
-            density = (self.occupancy.lookup(positions) if field.proposal == "cache" and field.importance_samples > 0
-                       else self.grid_field.density(positions))
+            density = (
+                self.occupancy.lookup(positions)
+                if field.proposal == "cache" and field.importance_samples > 0
+                else self.grid_field.density(positions)
+            )
             weights = self._weights(density, flat, delta / self.scene_scale)
             if field.importance_samples > 0:
-                t, delta = resample_occupied(t, delta, fraction, weights, field.importance_samples,
-                                             deterministic=not stochastic)
+                t, delta = resample_occupied(
+                    t, delta, fraction, weights, field.importance_samples, deterministic=not stochastic
+                )
                 return t, delta, (delta > 0).reshape(-1).nonzero()[:, 0]
             transmittance = 1.0 - (torch.cumsum(weights, dim=-1) - weights)
             return t, delta, flat[transmittance.reshape(-1)[flat] > field.early_stop_transmittance]
 
-    def _render_grid(self, origins: Tensor, directions: Tensor, camera: Camera,
-                     output_shape: tuple[int, ...], stochastic: bool) -> LdrFeatures:
+    def _render_grid(
+        self, origins: Tensor, directions: Tensor, camera: Camera, output_shape: tuple[int, ...], stochastic: bool
+    ) -> LdrFeatures:
         """Packed features: the field runs on the placed samples (place_samples) and only those
         whose weight reaches min_sample_weight get a colour."""
         field = self.config.field
@@ -286,14 +346,24 @@ class NerfBackbone(Backbone):
         ray_indices = ray_of[coloured]
         raw_color = self.grid_field.color(geometry[coloured], directions[ray_indices])
         accumulation = weights.sum(dim=-1)
-        extras = {"weights": weights, "sample_distances": t, "ray_indices": ray_indices,
-                  "depth": (weights * t).sum(dim=-1).reshape(output_shape),
-                  "alpha": accumulation.reshape(output_shape)}
-        composite = make_packed_composite(sample_weights[coloured], ray_indices, accumulation, output_shape,
-                                          self.background)
+        extras = {
+            "weights": weights,
+            "sample_distances": t,
+            "ray_indices": ray_indices,
+            "depth": (weights * t).sum(dim=-1).reshape(output_shape),
+            "alpha": accumulation.reshape(output_shape),
+        }
+        composite = make_packed_composite(
+            sample_weights[coloured], ray_indices, accumulation, output_shape, self.background
+        )
         colors = F.softplus(raw_color) if field.color_activation == "softplus" else torch.sigmoid(raw_color)
-        return LdrFeatures(colors=colors, raw_colors=raw_color, composite=composite, extras=extras,
-                           l2h_inputs=raw_color if field.l2h_input == "raw" else None)
+        return LdrFeatures(
+            colors=colors,
+            raw_colors=raw_color,
+            composite=composite,
+            extras=extras,
+            l2h_inputs=raw_color if field.l2h_input == "raw" else None,
+        )
 
     @staticmethod
     def _weights(density: Tensor, flat: Tensor, deltas: Tensor) -> Tensor:

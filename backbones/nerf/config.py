@@ -51,10 +51,19 @@ class MlpFieldConfig:
     lr_decay_steps: int = 250_000
     """NeRF's exponential decay: lr * lr_decay_factor ** (step / lr_decay_steps)."""
 
-    flag_rules: ClassVar = {"depth": at_least(1), "width": at_least(1), "skip_layer": NON_NEGATIVE,
-                            "xyz_frequencies": NON_NEGATIVE, "dir_frequencies": NON_NEGATIVE,
-                            "coarse_samples": at_least(1), "fine_samples": NON_NEGATIVE, "rays_per_step": at_least(1),
-                            "lr": POSITIVE, "lr_decay_factor": POSITIVE, "lr_decay_steps": at_least(1)}
+    flag_rules: ClassVar = {
+        "depth": at_least(1),
+        "width": at_least(1),
+        "skip_layer": NON_NEGATIVE,
+        "xyz_frequencies": NON_NEGATIVE,
+        "dir_frequencies": NON_NEGATIVE,
+        "coarse_samples": at_least(1),
+        "fine_samples": NON_NEGATIVE,
+        "rays_per_step": at_least(1),
+        "lr": POSITIVE,
+        "lr_decay_factor": POSITIVE,
+        "lr_decay_steps": at_least(1),
+    }
 
 
 @dataclass
@@ -141,16 +150,32 @@ class GridFieldConfig:
     """Learning rates decay exponentially to this factor at the last step of the run."""
 
     flag_rules: ClassVar = {
-        "levels": at_least(1), "min_resolution": at_least(2), "max_resolution": at_least(2),
-        "features_per_level": at_least(1), "hidden_width": at_least(1), "geo_features": NON_NEGATIVE,
-        "dir_frequencies": NON_NEGATIVE, "density_scale": POSITIVE, "density_bias": ANY_FINITE,
-        "min_step": POSITIVE, "max_samples_per_ray": at_least(1), "importance_samples": NON_NEGATIVE,
-        "early_stop_transmittance": FRACTION, "min_sample_weight": NON_NEGATIVE, "occupancy_resolution": at_least(1),
-        "occupancy_update_every": at_least(1), "occupancy_decay": between(0, 1, low_open=True),
-        "occupancy_threshold": between(0, 1, high_open=True), "occupancy_warmup_steps": NON_NEGATIVE,
-        "rays_per_step": at_least(1), "samples_per_step": at_least(1), "max_rays_per_step": at_least(1),
-        "grid_lr": POSITIVE, "mlp_lr": POSITIVE,
-        "lr_final_factor": POSITIVE}
+        "levels": at_least(1),
+        "min_resolution": at_least(2),
+        "max_resolution": at_least(2),
+        "features_per_level": at_least(1),
+        "hidden_width": at_least(1),
+        "geo_features": NON_NEGATIVE,
+        "dir_frequencies": NON_NEGATIVE,
+        "density_scale": POSITIVE,
+        "density_bias": ANY_FINITE,
+        "min_step": POSITIVE,
+        "max_samples_per_ray": at_least(1),
+        "importance_samples": NON_NEGATIVE,
+        "early_stop_transmittance": FRACTION,
+        "min_sample_weight": NON_NEGATIVE,
+        "occupancy_resolution": at_least(1),
+        "occupancy_update_every": at_least(1),
+        "occupancy_decay": between(0, 1, low_open=True),
+        "occupancy_threshold": between(0, 1, high_open=True),
+        "occupancy_warmup_steps": NON_NEGATIVE,
+        "rays_per_step": at_least(1),
+        "samples_per_step": at_least(1),
+        "max_rays_per_step": at_least(1),
+        "grid_lr": POSITIVE,
+        "mlp_lr": POSITIVE,
+        "lr_final_factor": POSITIVE,
+    }
 
 
 FieldConfig = GridFieldConfig | MlpFieldConfig

@@ -52,8 +52,11 @@ class MlpRadianceField(nn.Module):
         xyz_size, dir_size = encoded_size(config.xyz_frequencies), encoded_size(config.dir_frequencies)
         self.position_layers = nn.ModuleList(
             [nn.Linear(xyz_size, config.width)]
-            + [nn.Linear(config.width + (xyz_size if index == config.skip_layer + 1 else 0), config.width)
-               for index in range(1, config.depth)])
+            + [
+                nn.Linear(config.width + (xyz_size if index == config.skip_layer + 1 else 0), config.width)
+                for index in range(1, config.depth)
+            ]
+        )
         self.density_head = nn.Linear(config.width, 1)
         self.feature_head = nn.Linear(config.width, config.width)
         self.view_layer = nn.Linear(config.width + dir_size, config.width // 2)
@@ -68,8 +71,9 @@ class MlpRadianceField(nn.Module):
             if index == self.config.skip_layer:
                 hidden = torch.cat([encoded, hidden], dim=-1)
         density = activate_density(self.density_head(hidden)[:, 0], self.config.density_activation)
-        view_input = torch.cat([self.feature_head(hidden),
-                                positional_encoding(directions, self.config.dir_frequencies)], dim=-1)
+        view_input = torch.cat(
+            [self.feature_head(hidden), positional_encoding(directions, self.config.dir_frequencies)], dim=-1
+        )
         raw_color = self.color_head(F.relu(self.view_layer(view_input)))
         return density, raw_color
 
@@ -79,7 +83,7 @@ def grid_resolutions(config: GridFieldConfig) -> list[int]:
     if config.levels == 1:
         return [config.max_resolution]
     growth = (config.max_resolution / config.min_resolution) ** (1.0 / (config.levels - 1))
-    return [round(config.min_resolution * growth ** level) for level in range(config.levels)]
+    return [round(config.min_resolution * growth**level) for level in range(config.levels)]
 
 
 class GridRadianceField(nn.Module):
@@ -101,11 +105,14 @@ class GridRadianceField(nn.Module):
         # Near-zero features, as Instant-NGP initialises its tables: the MLPs start from biases.
         self.table = nn.Parameter(torch.empty(int(sizes.sum()), config.features_per_level).uniform_(-1e-4, 1e-4))
         width = config.hidden_width
-        self.density_mlp = nn.Sequential(nn.Linear(config.levels * config.features_per_level, width),
-                                         nn.ReLU(), nn.Linear(width, 1 + config.geo_features))
+        self.density_mlp = nn.Sequential(
+            nn.Linear(config.levels * config.features_per_level, width),
+            nn.ReLU(),
+            nn.Linear(width, 1 + config.geo_features),
+        )
         self.color_mlp = nn.Sequential(
-            nn.Linear(config.geo_features + encoded_size(config.dir_frequencies), width), nn.ReLU(),
-            nn.Linear(width, 3))
+            nn.Linear(config.geo_features + encoded_size(config.dir_frequencies), width), nn.ReLU(), nn.Linear(width, 3)
+        )
 
     def encode(self, positions: Tensor) -> Tensor:
         """positions: [M, 3] in [-1, 1]. Returns grid features [M, levels * features_per_level]."""
@@ -171,8 +178,13 @@ class OccupancyGrid(nn.Module):
     def lookup(self, positions: Tensor) -> Tensor:
         """Cached density, trilinear between cell centres. positions: [M, 3] in [-1, 1]. Returns [M]."""
         grid = self.densities.reshape(1, 1, *self.densities.shape)
-        values = F.grid_sample(grid, positions.reshape(1, 1, 1, -1, 3).to(grid.dtype), mode="bilinear",
-                               padding_mode="border", align_corners=False)
+        values = F.grid_sample(
+            grid,
+            positions.reshape(1, 1, 1, -1, 3).to(grid.dtype),
+            mode="bilinear",
+            padding_mode="border",
+            align_corners=False,
+        )
         return values.reshape(-1)
 
     @torch.no_grad()
@@ -184,23 +196,29 @@ class OccupancyGrid(nn.Module):
         cameras: the training cameras; to_world: normalised positions [M, 3] -> world [M, 3].
         """
         half = 1.0 / self.resolution
-        offsets = torch.tensor([[0.0, 0.0, 0.0]] + [[sx * half, sy * half, sz * half] for sx in (-1, 1)
-                                                    for sy in (-1, 1) for sz in (-1, 1)])
+        offsets = torch.tensor(
+            [[0.0, 0.0, 0.0]]
+            + [[sx * half, sy * half, sz * half] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+        )
         centers = self.cell_centers()
         seen = torch.zeros(centers.shape[0], dtype=torch.bool)
         for offset in offsets:
             points = to_world(centers + offset)
             for camera in cameras:
                 pixels, depth = camera.project(points)
-                seen |= ((depth > camera.near) & (pixels[:, 0] >= 0) & (pixels[:, 0] <= camera.width)
-                         & (pixels[:, 1] >= 0) & (pixels[:, 1] <= camera.height))
+                seen |= (
+                    (depth > camera.near)
+                    & (pixels[:, 0] >= 0)
+                    & (pixels[:, 0] <= camera.width)
+                    & (pixels[:, 1] >= 0)
+                    & (pixels[:, 1] <= camera.height)
+                )
         grid = seen.reshape(1, 1, *self.seen.shape).float()
         self.seen.copy_(F.max_pool3d(grid, 3, stride=1, padding=1)[0, 0] > 0)
         self.occupied &= self.seen
 
     @torch.no_grad()
-    def update(self, density_fn, decay: float, threshold: float, all_cells: bool = True,
-               chunk: int = 65536) -> None:
+    def update(self, density_fn, decay: float, threshold: float, all_cells: bool = True, chunk: int = 65536) -> None:
         """Refresh cells with density_fn at a random point of each: new = max(decay * old, fresh).
 
         density_fn: positions [M, 3] in [-1, 1] -> densities [M] (per unit of normalised length).

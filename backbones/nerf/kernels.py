@@ -23,8 +23,9 @@ class _GridEncode(torch.autograd.Function):
         positions, resolutions, offsets = ctx.saved_tensors
         grad_table = None
         if ctx.needs_input_grad[1]:
-            grad_table = load_extension().grid_encode_backward(grad_features.contiguous(), positions, resolutions,
-                                                               offsets, ctx.table_rows)
+            grad_table = load_extension().grid_encode_backward(
+                grad_features.contiguous(), positions, resolutions, offsets, ctx.table_rows
+            )
         return None, grad_table, None, None
 
 
@@ -40,9 +41,18 @@ def grid_encode(positions: Tensor, table: Tensor, resolutions: Tensor, offsets: 
 
 
 @torch.no_grad()
-def march_rays(origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor, occupancy: Tensor,
-               center: Tensor, scale: float, min_step: float, max_samples: int,
-               jitter: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+def march_rays(
+    origins: Tensor,
+    directions: Tensor,
+    t_near: Tensor,
+    t_far: Tensor,
+    occupancy: Tensor,
+    center: Tensor,
+    scale: float,
+    min_step: float,
+    max_samples: int,
+    jitter: Tensor | None,
+) -> tuple[Tensor, Tensor, Tensor]:
     """Stratified samples over the occupied stretches of each ray's [t_near, t_far].
 
     origins, directions: [N, 3] world (unit directions); t_near, t_far: [N] world distances;
@@ -54,7 +64,17 @@ def march_rays(origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tenso
     Returns t [N, S], delta [N, S] (world units; 0 past a ray's count) and counts [N] int64.
     """
     empty = torch.empty(0, dtype=torch.float32)
-    return tuple(load_extension().march_rays(
-        origins.float().contiguous(), directions.float().contiguous(), t_near.float().contiguous(),
-        t_far.float().contiguous(), occupancy.to(torch.uint8).contiguous(), center.float().contiguous(),
-        float(scale), float(min_step), int(max_samples), empty if jitter is None else jitter.float().contiguous()))
+    return tuple(
+        load_extension().march_rays(
+            origins.float().contiguous(),
+            directions.float().contiguous(),
+            t_near.float().contiguous(),
+            t_far.float().contiguous(),
+            occupancy.to(torch.uint8).contiguous(),
+            center.float().contiguous(),
+            float(scale),
+            float(min_step),
+            int(max_samples),
+            empty if jitter is None else jitter.float().contiguous(),
+        )
+    )

@@ -13,17 +13,31 @@ def grid_encode_reference(positions: Tensor, table: Tensor, resolutions: Tensor,
     """kernels.grid_encode with torch's grid_sample, one level at a time."""
     features = []
     for resolution, offset in zip(resolutions.tolist(), offsets.tolist()):
-        level = table[offset:offset + resolution**3].reshape(resolution, resolution, resolution, -1)
+        level = table[offset : offset + resolution**3].reshape(resolution, resolution, resolution, -1)
         grid = level.permute(3, 0, 1, 2).unsqueeze(0)  # [1, F, z, y, x]
-        sampled = F.grid_sample(grid, positions.reshape(1, 1, 1, -1, 3).to(table.dtype), mode="bilinear",
-                                padding_mode="border", align_corners=True)
+        sampled = F.grid_sample(
+            grid,
+            positions.reshape(1, 1, 1, -1, 3).to(table.dtype),
+            mode="bilinear",
+            padding_mode="border",
+            align_corners=True,
+        )
         features.append(sampled.reshape(level.shape[-1], -1).T)
     return torch.cat(features, dim=-1)
 
 
-def march_rays_reference(origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor, occupancy: Tensor,
-                         center: Tensor, scale: float, min_step: float, max_samples: int,
-                         jitter: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+def march_rays_reference(
+    origins: Tensor,
+    directions: Tensor,
+    t_near: Tensor,
+    t_far: Tensor,
+    occupancy: Tensor,
+    center: Tensor,
+    scale: float,
+    min_step: float,
+    max_samples: int,
+    jitter: Tensor | None,
+) -> tuple[Tensor, Tensor, Tensor]:
     """kernels.march_rays without a cell walk: every crossing of a cell plane splits the ray,
     each piece is occupied or not by the cell of its midpoint (outside the cube: empty), and
     samples are placed along the concatenated occupied pieces by a cumulative sum and a search."""

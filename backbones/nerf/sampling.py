@@ -17,8 +17,7 @@ _FAR_AWAY = 1e30
 _PDF_FLOOR = 1e-5
 
 
-def intersect_box(origins: Tensor, directions: Tensor, bounds_min: Tensor,
-                  bounds_max: Tensor) -> tuple[Tensor, Tensor]:
+def intersect_box(origins: Tensor, directions: Tensor, bounds_min: Tensor, bounds_max: Tensor) -> tuple[Tensor, Tensor]:
     """Entry and exit distances of rays through an axis-aligned box (slab test).
 
     origins, directions: [N, 3]; bounds_min, bounds_max: [3].
@@ -31,15 +30,14 @@ def intersect_box(origins: Tensor, directions: Tensor, bounds_min: Tensor,
     t_upper = (bounds_max - origins) / safe_directions
     inside_slab = (origins >= bounds_min) & (origins <= bounds_max)
     far_away = torch.full_like(t_lower, _FAR_AWAY)
-    axis_enter = torch.where(parallel, torch.where(inside_slab, -far_away, far_away),
-                             torch.minimum(t_lower, t_upper))
-    axis_exit = torch.where(parallel, torch.where(inside_slab, far_away, -far_away),
-                            torch.maximum(t_lower, t_upper))
+    axis_enter = torch.where(parallel, torch.where(inside_slab, -far_away, far_away), torch.minimum(t_lower, t_upper))
+    axis_exit = torch.where(parallel, torch.where(inside_slab, far_away, -far_away), torch.maximum(t_lower, t_upper))
     return axis_enter.amax(dim=-1), axis_exit.amin(dim=-1)
 
 
-def ray_segments(origins: Tensor, directions: Tensor, near: float, far: float,
-                 bounds: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor]:
+def ray_segments(
+    origins: Tensor, directions: Tensor, near: float, far: float, bounds: tuple[Tensor, Tensor] | None
+) -> tuple[Tensor, Tensor]:
     """The [t_near, t_far] each ray is sampled in: [near, far], clipped to the box if given.
 
     origins, directions: [N, 3]. Returns t_near, t_far: [N] with near <= t_near <= t_far;
@@ -102,8 +100,9 @@ def sample_pdf(bin_edges: Tensor, weights: Tensor, num_samples: int, determinist
 _UNIFORM_SHARE = 0.01
 
 
-def resample_occupied(t: Tensor, delta: Tensor, fraction: Tensor, weights: Tensor, count: int,
-                      deterministic: bool) -> tuple[Tensor, Tensor]:
+def resample_occupied(
+    t: Tensor, delta: Tensor, fraction: Tensor, weights: Tensor, count: int, deterministic: bool
+) -> tuple[Tensor, Tensor]:
     """`count` samples per ray drawn from the rendering weights of marched samples.
 
     t, delta: [N, S] marched samples (kernels.march_rays): sample k sits at t[:, k] and stands for
@@ -117,12 +116,16 @@ def resample_occupied(t: Tensor, delta: Tensor, fraction: Tensor, weights: Tenso
     edges = torch.cat([torch.zeros_like(delta[:, :1]), torch.cumsum(delta, dim=-1)], dim=-1)
     total = edges[:, -1:]
     mass = weights.sum(dim=-1, keepdim=True).clamp_min(torch.finfo(weights.dtype).tiny)
-    pdf = ((1.0 - _UNIFORM_SHARE) * weights / mass
-           + _UNIFORM_SHARE * delta / total.clamp_min(torch.finfo(delta.dtype).tiny))
+    pdf = (1.0 - _UNIFORM_SHARE) * weights / mass + _UNIFORM_SHARE * delta / total.clamp_min(
+        torch.finfo(delta.dtype).tiny
+    )
     # Evenly spaced quantiles end at the ray's end, where a sample would stand for no length: draw
     # one more and drop it.
-    s = sample_pdf(edges, pdf, count + 1, deterministic=True)[:, :-1] if deterministic else \
-        sample_pdf(edges, pdf, count, deterministic=False)
+    s = (
+        sample_pdf(edges, pdf, count + 1, deterministic=True)[:, :-1]
+        if deterministic
+        else sample_pdf(edges, pdf, count, deterministic=False)
+    )
     bins = torch.searchsorted(edges[:, 1:].contiguous(), s.contiguous(), right=True).clamp(max=delta.shape[1] - 1)
     s_marched = edges.gather(1, bins) + fraction.gather(1, bins) * delta.gather(1, bins)
     t_new = t.gather(1, bins) + (s - s_marched)

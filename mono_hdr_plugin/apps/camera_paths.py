@@ -46,17 +46,29 @@ def camera_from_viewer(view: ViewerCamera, height: int, near: float, far: float)
     c2w[:3, :3] = torch.from_numpy(Rotation.from_quat([x, y, z, w]).as_matrix())
     c2w[:3, 3] = torch.tensor(view.position, dtype=torch.float64)
     focal = 0.5 * height / math.tan(0.5 * view.fov)
-    return Camera(c2w=c2w.float(), fx=focal, fy=focal, cx=0.5 * width, cy=0.5 * height, width=width, height=height,
-                  near=near, far=far)
+    return Camera(
+        c2w=c2w.float(),
+        fx=focal,
+        fy=focal,
+        cx=0.5 * width,
+        cy=0.5 * height,
+        width=width,
+        height=height,
+        near=near,
+        far=far,
+    )
 
 
 def viewer_from_camera(camera: Camera) -> ViewerCamera:
     """The viewer camera that sees what `camera` sees (its vertical field of view and aspect)."""
     x, y, z, w = Rotation.from_matrix(camera.c2w[:3, :3].double().numpy()).as_quat()
     center = camera.center
-    return ViewerCamera(wxyz=(float(w), float(x), float(y), float(z)),
-                        position=(float(center[0]), float(center[1]), float(center[2])),
-                        fov=2.0 * math.atan(0.5 * camera.height / camera.fy), aspect=camera.width / camera.height)
+    return ViewerCamera(
+        wxyz=(float(w), float(x), float(y), float(z)),
+        position=(float(center[0]), float(center[1]), float(center[2])),
+        fov=2.0 * math.atan(0.5 * camera.height / camera.fy),
+        aspect=camera.width / camera.height,
+    )
 
 
 def scene_up(cameras: list[Camera]) -> torch.Tensor:
@@ -85,8 +97,17 @@ def focus_point(scene: SceneData, cameras: list[Camera]) -> torch.Tensor:
 
 
 def _with_pose(template: Camera, c2w: torch.Tensor, near: float, far: float) -> Camera:
-    return Camera(c2w=c2w.float(), fx=template.fx, fy=template.fy, cx=template.cx, cy=template.cy,
-                  width=template.width, height=template.height, near=near, far=far)
+    return Camera(
+        c2w=c2w.float(),
+        fx=template.fx,
+        fy=template.fy,
+        cx=template.cx,
+        cy=template.cy,
+        width=template.width,
+        height=template.height,
+        near=near,
+        far=far,
+    )
 
 
 def dataset_path(views: list[View], frames: int | None) -> list[Camera]:
@@ -104,8 +125,9 @@ def interpolate_path(views: list[View], frames: int) -> list[Camera]:
     if len(keys) < 2:
         raise ValueError("--path interpolate needs at least two cameras in the split; use --path spiral")
     times = np.linspace(0.0, len(keys) - 1, frames)
-    rotations = Slerp(np.arange(len(keys)), Rotation.from_matrix(np.stack([k.c2w[:3, :3].double().numpy()
-                                                                            for k in keys])))(times).as_matrix()
+    rotations = Slerp(
+        np.arange(len(keys)), Rotation.from_matrix(np.stack([k.c2w[:3, :3].double().numpy() for k in keys]))
+    )(times).as_matrix()
     near, far = min(k.near for k in keys), max(k.far for k in keys)
     path = []
     for time, rotation in zip(times, rotations, strict=True):
@@ -115,9 +137,19 @@ def interpolate_path(views: list[View], frames: int) -> list[Camera]:
         c2w = torch.eye(4, dtype=torch.float64)
         c2w[:3, :3] = torch.from_numpy(rotation)
         c2w[:3, 3] = (1 - share) * a.center.double() + share * b.center.double()
-        path.append(Camera(c2w=c2w.float(), fx=(1 - share) * a.fx + share * b.fx, fy=(1 - share) * a.fy + share * b.fy,
-                           cx=(1 - share) * a.cx + share * b.cx, cy=(1 - share) * a.cy + share * b.cy,
-                           width=a.width, height=a.height, near=near, far=far))
+        path.append(
+            Camera(
+                c2w=c2w.float(),
+                fx=(1 - share) * a.fx + share * b.fx,
+                fy=(1 - share) * a.fy + share * b.fy,
+                cx=(1 - share) * a.cx + share * b.cx,
+                cy=(1 - share) * a.cy + share * b.cy,
+                width=a.width,
+                height=a.height,
+                near=near,
+                far=far,
+            )
+        )
     return path
 
 
@@ -144,8 +176,13 @@ def spiral_path(scene: SceneData, views: list[View], frames: int, rotations: flo
         planar = (distances.mean() ** 2 - heights.mean() ** 2).clamp_min(1e-12).sqrt()
         start, side = planar * start / start.norm(), planar * side / side.norm().clamp_min(1e-12)
         low, high = heights.min(), heights.max()
-        eyes = [focus + torch.cos(a) * start + torch.sin(a) * side
-                + (0.5 * (low + high) + 0.5 * (high - low) * torch.sin(2 * a)) * up for a in angles]
+        eyes = [
+            focus
+            + torch.cos(a) * start
+            + torch.sin(a) * side
+            + (0.5 * (low + high) + 0.5 * (high - low) * torch.sin(2 * a)) * up
+            for a in angles
+        ]
     else:
         forward = (focus - mean_centre) / (focus - mean_centre).norm()
         right = torch.linalg.cross(forward, up)
@@ -155,8 +192,13 @@ def spiral_path(scene: SceneData, views: list[View], frames: int, rotations: flo
         reach = 0.05 * float((focus - mean_centre).norm())
         radius_x = max(float(torch.quantile((offsets @ right).abs(), 0.9)), reach)
         radius_y = max(float(torch.quantile((offsets @ down).abs(), 0.9)), reach)
-        eyes = [mean_centre + radius_x * torch.cos(rotations * a) * right + radius_y * torch.sin(rotations * a) * down
-                + reach * torch.sin(0.5 * rotations * a) * forward for a in angles]
+        eyes = [
+            mean_centre
+            + radius_x * torch.cos(rotations * a) * right
+            + radius_y * torch.sin(rotations * a) * down
+            + reach * torch.sin(0.5 * rotations * a) * forward
+            for a in angles
+        ]
     return [_with_pose(template, look_at(eye, focus, up), near, far) for eye in eyes]
 
 

@@ -8,9 +8,10 @@ code 2, and Ctrl-C exit code 130 (with the command that resumes an interrupted t
 import os
 import shlex
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import tyro
 from rich.console import Console
@@ -56,14 +57,18 @@ class PresetChoice:
 
 
 def command_train(argv: list[str]) -> None:
-    from mono_hdr_plugin.core.registry import BACKBONES  # noqa: PLC0415
-    from mono_hdr_plugin.training.config import train_config_for  # noqa: PLC0415
-    from mono_hdr_plugin.training.trainer import run_training  # noqa: PLC0415
+    from mono_hdr_plugin.core.registry import BACKBONES
+    from mono_hdr_plugin.training.config import train_config_for
+    from mono_hdr_plugin.training.trainer import run_training
 
     backbones = BACKBONES.available()
     # A preset changes the defaults of other flags and a method brings flags of its own, so tyro parses them first.
-    choice, _ = tyro.cli(PresetChoice, args=[a for a in argv if a not in ("-h", "--help")],
-                         return_unknown_args=True, prog="mono-hdr train")
+    choice, _ = tyro.cli(
+        PresetChoice,
+        args=[a for a in argv if a not in ("-h", "--help")],
+        return_unknown_args=True,
+        prog="mono-hdr train",
+    )
     refuse_flags_of_other_methods(argv, choice.method)
     backbone_arg = next((a for a in argv if a in backbones), None)
     defaults = {}
@@ -71,17 +76,20 @@ def command_train(argv: list[str]) -> None:
         presets = entry.plugin.presets()
         preset = choice.preset if name == backbone_arg and choice.preset is not None else next(iter(presets))
         if preset not in presets:
-            raise ValueError(f"--preset {preset!r} is not a preset of backbone {name!r}; choose one of "
-                             f"{', '.join(presets)} (listed by `mono-hdr backbones`)")
-        defaults[name] = train_config_for(entry.plugin.config_class, choice.method)(backbone=presets[preset],
-                                                                                    preset=preset)
-    described = {name: (_first_line(backbones[name].plugin.__doc__), default)
-                 for name, default in defaults.items()}
-    config = tyro.extras.overridable_config_cli(described, args=argv, prog="mono-hdr train",
-                                                description="Train a backbone with Mono-HDR or a baseline.")
+            raise ValueError(
+                f"--preset {preset!r} is not a preset of backbone {name!r}; choose one of "
+                f"{', '.join(presets)} (listed by `mono-hdr backbones`)"
+            )
+        defaults[name] = train_config_for(entry.plugin.config_class, choice.method)(
+            backbone=presets[preset], preset=preset
+        )
+    described = {name: (_first_line(backbones[name].plugin.__doc__), default) for name, default in defaults.items()}
+    config = tyro.extras.overridable_config_cli(
+        described, args=argv, prog="mono-hdr train", description="Train a backbone with Mono-HDR or a baseline."
+    )
     backbone_name = next(name for name, default in defaults.items() if type(default) is type(config))
     if config.viewer:
-        from mono_hdr_plugin.apps.viewer.live_training import train_with_viewer  # noqa: PLC0415
+        from mono_hdr_plugin.apps.viewer.live_training import train_with_viewer
 
         def report(metrics: dict) -> None:
             print_metrics(metrics, config.out / "metrics.json")
@@ -95,15 +103,17 @@ def command_train(argv: list[str]) -> None:
 def refuse_flags_of_other_methods(argv: list[str], method: str | None) -> None:
     """A flag of another method's own options (`--unit-exposure-weight` without `--method hdr-nerf`) is
     named with the methods that take it, instead of tyro's bare "unrecognized argument"."""
-    from mono_hdr_plugin.methods.base import METHODS, MethodConfig  # noqa: PLC0415
+    from mono_hdr_plugin.methods.base import METHODS, MethodConfig
 
     chosen = MethodConfig.method if method is None else method
     own = set(METHODS.get(chosen).own_flags())
     for flag in {arg.split("=", 1)[0] for arg in argv if arg.startswith("--")} - own:
         owners = [name for name, entry in METHODS.available().items() if flag in entry.plugin.own_flags()]
         if owners:
-            raise FlagError(f"{flag} is a flag of --method {' / '.join(owners)}, not of --method {chosen}: pass "
-                            f"--method {owners[0]} with it, or leave it out")
+            raise FlagError(
+                f"{flag} is a flag of --method {' / '.join(owners)}, not of --method {chosen}: pass "
+                f"--method {owners[0]} with it, or leave it out"
+            )
 
 
 def _first_line(text: str | None) -> str:
@@ -111,18 +121,22 @@ def _first_line(text: str | None) -> str:
 
 
 def command_eval(config: EvalConfig) -> None:
-    from mono_hdr_plugin.data.io import write_json  # noqa: PLC0415
-    from mono_hdr_plugin.training.evaluation import evaluate  # noqa: PLC0415
-    from mono_hdr_plugin.data.outputs import check_output, claim_output  # noqa: PLC0415
-    from mono_hdr_plugin.training.trained import load_trained_model  # noqa: PLC0415
+    from mono_hdr_plugin.data.io import write_json
+    from mono_hdr_plugin.data.outputs import check_output, claim_output
+    from mono_hdr_plugin.training.evaluation import evaluate
+    from mono_hdr_plugin.training.trained import load_trained_model
 
     claim = {"command": "eval", "owned": EVAL_OUTPUTS, "overwrite": config.overwrite}
     check_output(config.out, inputs=[config.checkpoint], **claim)  # before the slow load
     run = load_trained_model(config.checkpoint, data_path=config.data, scene_name=config.scene)
     with claim_output(config.out, inputs=[config.checkpoint, run.config.data.data], **claim) as output:
         output.clear_previous()
-        metrics = evaluate(run.pipeline, run.scene, run.config.max_eval_views,
-                           render_dir=config.out / "renders" if config.save_renders else None)
+        metrics = evaluate(
+            run.pipeline,
+            run.scene,
+            run.config.max_eval_views,
+            render_dir=config.out / "renders" if config.save_renders else None,
+        )
         metrics.update(preset=run.config.preset, steps=run.step, train_seconds=run.train_seconds)
         write_json(config.out / "metrics.json", metrics)
     print_metrics(metrics, config.out / "metrics.json")
@@ -131,31 +145,38 @@ def command_eval(config: EvalConfig) -> None:
 def command_render(config: Any) -> None:
     """`mono-hdr render` in a folder it claims: one writer at a time, never a folder another command or a
     person wrote; renders add to an earlier render's folder (files of the same name are replaced)."""
-    from mono_hdr_plugin.data.outputs import claim_output  # noqa: PLC0415
-    from mono_hdr_plugin.apps.render import render_command  # noqa: PLC0415
+    from mono_hdr_plugin.apps.render import render_command
+    from mono_hdr_plugin.data.outputs import claim_output
 
     with claim_output(config.out, "render", None, inputs=[config.checkpoint], keep=True):
         render_command(config)
 
 
 def command_bench(argv: list[str]) -> None:
-    import mono_hdr_plugin.apps.bench  # noqa: F401, PLC0415 - registers the built-in benchmarks
-    from mono_hdr_plugin.core.registry import BENCHMARKS  # noqa: PLC0415
+    import mono_hdr_plugin.apps.bench  # noqa: F401 - registers the built-in benchmarks
+    from mono_hdr_plugin.core.registry import BENCHMARKS
 
     benchmarks = {name: entry.plugin for name, entry in BENCHMARKS.available().items()}
-    config = tyro.extras.subcommand_cli_from_dict(benchmarks, args=argv, prog="mono-hdr bench",
-                                                  description="Accuracy versus time: curves, the paper's tables, and "
-                                                              "what plugins contribute (3DGS: raster).")
+    config = tyro.extras.subcommand_cli_from_dict(
+        benchmarks,
+        args=argv,
+        prog="mono-hdr bench",
+        description="Accuracy versus time: curves, the paper's tables, and what plugins contribute (3DGS: raster).",
+    )
     check_flags(config)
     config.out.mkdir(parents=True, exist_ok=True)
     config.run()
 
 
 def command_backbones(config: BackbonesConfig) -> None:
-    from mono_hdr_plugin.core.registry import BACKBONES  # noqa: PLC0415
+    from mono_hdr_plugin.core.registry import BACKBONES
 
     def describe(cls: type) -> tuple[str, ...]:
-        return (", ".join(cls.presets()), cls.loss_kind, "whole image" if cls.pixel_batch is None else str(cls.pixel_batch))
+        return (
+            ", ".join(cls.presets()),
+            cls.loss_kind,
+            "whole image" if cls.pixel_batch is None else str(cls.pixel_batch),
+        )
 
     print_plugins(BACKBONES, "mono-hdr backbones", ("presets (first: default)", "loss", "rays per step"), describe)
 
@@ -166,7 +187,7 @@ class MethodsConfig:
 
 
 def command_methods(config: MethodsConfig) -> None:
-    from mono_hdr_plugin.methods.base import METHODS  # noqa: PLC0415
+    from mono_hdr_plugin.methods.base import METHODS
 
     def describe(cls: type) -> tuple[str]:
         flags = cls.own_flags()
@@ -181,10 +202,14 @@ class LayoutsConfig:
 
 
 def command_layouts(config: LayoutsConfig) -> None:
-    from mono_hdr_plugin.data.layouts import LAYOUTS  # noqa: PLC0415
+    from mono_hdr_plugin.data.layouts import LAYOUTS
 
-    print_plugins(LAYOUTS, "mono-hdr layouts (--layout; detected in this order)", ("files", "writable"),
-                  lambda cls: (cls.description, "yes" if cls.writable else "no"))
+    print_plugins(
+        LAYOUTS,
+        "mono-hdr layouts (--layout; detected in this order)",
+        ("files", "writable"),
+        lambda cls: (cls.description, "yes" if cls.writable else "no"),
+    )
 
 
 def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Callable[[Any], tuple[str, ...]]) -> None:
@@ -194,16 +219,24 @@ def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Call
         table.add_column(column)
     for name, entry in registry.available().items():
         plugin = entry.plugin
-        table.add_row(*(Text(str(cell)) for cell in (name, f"{plugin.__module__}.{plugin.__qualname__}", entry.source,
-                                                      *describe(plugin))))
+        table.add_row(
+            *(
+                Text(str(cell))
+                for cell in (name, f"{plugin.__module__}.{plugin.__qualname__}", entry.source, *describe(plugin))
+            )
+        )
     for name, reason in registry.broken().items():  # plain Text: an error message is not markup
         table.add_row(Text(name, style="red"), Text("broken", style="red"), Text(reason), *[""] * len(columns))
     console.print(table)
 
 
 def print_metrics(metrics: dict, path: Path) -> None:
-    table = Table(title=Text(f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} "
-                             f"({metrics['steps']} steps, {metrics['train_seconds']:.0f} s)"))
+    table = Table(
+        title=Text(
+            f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} "
+            f"({metrics['steps']} steps, {metrics['train_seconds']:.0f} s)"
+        )
+    )
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr", "ldr_ssim"):
@@ -242,15 +275,20 @@ def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
 def _application_commands() -> dict[str, tuple[type, Callable]]:
     """Commands of the studio, viewing and process-data modules (imported only when the command line
     is built; a broken import shows as the error it is, not as a missing command)."""
-    from mono_hdr_plugin.apps.export import ExportConfig, export_command  # noqa: PLC0415
-    from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command  # noqa: PLC0415
-    from mono_hdr_plugin.apps.render import RenderConfig  # noqa: PLC0415
-    from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth  # noqa: PLC0415
-    from mono_hdr_plugin.apps.viewer.command import ViewConfig, view_command  # noqa: PLC0415
+    from mono_hdr_plugin.apps.export import ExportConfig, export_command
+    from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data_command
+    from mono_hdr_plugin.apps.render import RenderConfig
+    from mono_hdr_plugin.apps.studio.commands import ScenesConfig, SynthConfig, list_scenes_command, synth
+    from mono_hdr_plugin.apps.viewer.command import ViewConfig, view_command
 
-    return {"render": (RenderConfig, command_render), "view": (ViewConfig, view_command),
-            "export": (ExportConfig, export_command), "scenes": (ScenesConfig, list_scenes_command),
-            "synth": (SynthConfig, synth), "process-data": (ProcessDataConfig, process_data_command)}
+    return {
+        "render": (RenderConfig, command_render),
+        "view": (ViewConfig, view_command),
+        "export": (ExportConfig, export_command),
+        "scenes": (ScenesConfig, list_scenes_command),
+        "synth": (SynthConfig, synth),
+        "process-data": (ProcessDataConfig, process_data_command),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -276,7 +314,7 @@ def resume_command(argv: list[str]) -> str:
 def error_line(error: BaseException) -> str:
     """A user error as one line: its message (lines joined), or for a bare file-system error the path,
     what went wrong and the fix."""
-    from mono_hdr_plugin.data.errors import DatasetError, os_error_line  # noqa: PLC0415
+    from mono_hdr_plugin.data.errors import DatasetError, os_error_line
 
     text = os_error_line(error) if isinstance(error, OSError) and not isinstance(error, DatasetError) else str(error)
     return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
@@ -285,11 +323,11 @@ def error_line(error: BaseException) -> str:
 def run() -> None:
     """Console entry point: user errors print one line and exit 2 (set MONO_HDR_DEBUG=1 for the
     traceback); Ctrl-C exits 130, after training with the command that resumes it."""
-    from mono_hdr_plugin.training.checkpoints import CheckpointError  # noqa: PLC0415
-    from mono_hdr_plugin.data.outputs import OutputError  # noqa: PLC0415
-    from mono_hdr_plugin.core.registry import RegistryError  # noqa: PLC0415
-    from mono_hdr_plugin.training.hooks import TrainingInterrupted  # noqa: PLC0415
-    from mono_hdr_plugin.training.trainer import TrainingDiverged  # noqa: PLC0415
+    from mono_hdr_plugin.core.registry import RegistryError
+    from mono_hdr_plugin.data.outputs import OutputError
+    from mono_hdr_plugin.training.checkpoints import CheckpointError
+    from mono_hdr_plugin.training.hooks import TrainingInterrupted
+    from mono_hdr_plugin.training.trainer import TrainingDiverged
 
     try:
         main()

@@ -25,14 +25,19 @@ import torch
 from torch import Tensor
 
 from mono_hdr_plugin.core.colour import srgb_encode
+from mono_hdr_plugin.core.metrics import mu_law
 from mono_hdr_plugin.training.frames import ExposureModel
 from mono_hdr_plugin.training.pipeline import Frame
-from mono_hdr_plugin.core.metrics import mu_law
 
 Output = Literal["ldr", "hdr-srgb", "hdr-filmic", "hdr-mulaw", "depth"]
 OUTPUTS: tuple[str, ...] = get_args(Output)
-OUTPUT_LABELS = {"ldr": "LDR (camera response)", "hdr-srgb": "HDR, sRGB curve", "hdr-filmic": "HDR, filmic (ACES)",
-                 "hdr-mulaw": "HDR, mu-law", "depth": "Depth"}
+OUTPUT_LABELS = {
+    "ldr": "LDR (camera response)",
+    "hdr-srgb": "HDR, sRGB curve",
+    "hdr-filmic": "HDR, filmic (ACES)",
+    "hdr-mulaw": "HDR, mu-law",
+    "depth": "Depth",
+}
 
 
 def exposed_hdr(hdr: Tensor, exposure: float, model: ExposureModel) -> Tensor:
@@ -80,8 +85,10 @@ def to_display(frame: Frame, output: str, exposure: float, model: ExposureModel)
     if output == "ldr":
         if model.renders_any_exposure:
             if frame.exposure != exposure:
-                raise ValueError(f"the frame was rendered at {frame.exposure} s, not {exposure} s: "
-                                 "the camera response needs a render at the shown exposure")
+                raise ValueError(
+                    f"the frame was rendered at {frame.exposure} s, not {exposure} s: "
+                    "the camera response needs a render at the shown exposure"
+                )
             return frame.ldr
         if model.shows_own_ldr(exposure):
             return frame.ldr

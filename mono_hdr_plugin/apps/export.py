@@ -17,13 +17,13 @@ from rich.console import Console
 from rich.progress import track
 from torch import Tensor
 
-from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_vertices
 from mono_hdr_plugin.apps.display import to_display, to_uint8
+from mono_hdr_plugin.core.configs import config_from_dict
+from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, FlagError, at_least
+from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_vertices
+from mono_hdr_plugin.methods.base import HdrMethod, build_method, method_config_for
 from mono_hdr_plugin.training.evaluation import first_per_camera
 from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
-from mono_hdr_plugin.core.configs import config_from_dict
-from mono_hdr_plugin.methods.base import HdrMethod, build_method, method_config_for
-from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, FlagError, at_least
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
@@ -93,8 +93,9 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
         "method": method.config.method,
         "method_config": asdict(method.config),
         "loss_kind": method.loss_kind,
-        "hdr_recipe": method.hdr_recipe or f"the registered method {method.config.method!r}: apply its forward to "
-                                           "the Gaussians' colours (see its documentation)",
+        "hdr_recipe": method.hdr_recipe
+        or f"the registered method {method.config.method!r}: apply its forward to "
+        "the Gaussians' colours (see its documentation)",
         "reference_exposure_seconds": model.exposure.reference_exposure,
         "display_scale": model.exposure.display_scale,
         "display": "at exposure t seconds a display shows srgb(display_scale * hdr * t / reference_exposure_seconds)",
@@ -115,14 +116,17 @@ def load_converters(ply: Path) -> HdrMethod:
     if description.get("format") != CONVERTERS_FORMAT or description.get("version") != CONVERTERS_VERSION:
         raise ValueError(f"{description_path} is not a version {CONVERTERS_VERSION} {CONVERTERS_FORMAT!r} file")
     method_config = description["method_config"]  # options nested, or flat as written before methods had their own
-    method = build_method(config_from_dict(method_config_for(method_config["method"]), method_config),
-                          description["loss_kind"])
+    method = build_method(
+        config_from_dict(method_config_for(method_config["method"]), method_config), description["loss_kind"]
+    )
     with np.load(weights_path) as arrays:
         method.load_state_dict({name: torch.from_numpy(arrays[name]) for name in arrays.files})
     return method.eval()
 
 
-def points_from_depth(origins: Tensor, directions: Tensor, depth: Tensor, alpha: Tensor, min_alpha: float) -> tuple[Tensor, Tensor]:
+def points_from_depth(
+    origins: Tensor, directions: Tensor, depth: Tensor, alpha: Tensor, min_alpha: float
+) -> tuple[Tensor, Tensor]:
     """Where rays end: origin + (depth / alpha) * direction for rays at least `min_alpha` opaque.
 
     origins, directions [N, 3] (unit directions); depth [N] the expected distance along the ray
@@ -135,8 +139,9 @@ def points_from_depth(origins: Tensor, directions: Tensor, depth: Tensor, alpha:
 
 
 @torch.no_grad()
-def point_cloud(model: TrainedModel, scale: float = 1.0, min_alpha: float = 0.5,
-                max_points: int = 1_000_000) -> tuple[Tensor, Tensor, Tensor]:
+def point_cloud(
+    model: TrainedModel, scale: float = 1.0, min_alpha: float = 0.5, max_points: int = 1_000_000
+) -> tuple[Tensor, Tensor, Tensor]:
     """Points [N, 3], LDR colours [N, 3] in [0, 1] (the `ldr` output at the training exposure) and
     linear HDR [N, 3] where the training views' rays terminate."""
     points, colours, hdr = [], [], []
@@ -145,11 +150,18 @@ def point_cloud(model: TrainedModel, scale: float = 1.0, min_alpha: float = 0.5,
         camera = view.camera.scaled(scale) if scale != 1 else view.camera
         frame = model.pipeline.render(camera, model.exposure.reference_exposure, with_depth=True)
         if frame.depth is None or frame.alpha is None:
-            raise ValueError(f"the {model.pipeline.backbone_name!r} backbone renders no depth and opacity "
-                             "(LdrFeatures.extras 'depth' and 'alpha'), so there is no surface to export")
+            raise ValueError(
+                f"the {model.pipeline.backbone_name!r} backbone renders no depth and opacity "
+                "(LdrFeatures.extras 'depth' and 'alpha'), so there is no surface to export"
+            )
         origins, directions = camera.rays()
-        found, rays = points_from_depth(origins.reshape(-1, 3), directions.reshape(-1, 3), frame.depth.reshape(-1),
-                                        frame.alpha.reshape(-1), min_alpha)
+        found, rays = points_from_depth(
+            origins.reshape(-1, 3),
+            directions.reshape(-1, 3),
+            frame.depth.reshape(-1),
+            frame.alpha.reshape(-1),
+            min_alpha,
+        )
         shown = to_display(frame, "ldr", model.exposure.reference_exposure, model.exposure).reshape(-1, 3)
         points.append(found)
         colours.append(shown[rays])
@@ -165,7 +177,8 @@ def write_point_cloud(path: Path, points: Tensor, colours: Tensor, hdr: Tensor) 
     """A binary PLY point cloud: x, y, z (float), red, green, blue (uchar, what viewers show) and
     hdr_red, hdr_green, hdr_blue (float, linear radiance)."""
     names = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")] + [
-        (name, "f4") for name in POINT_CLOUD_HDR]
+        (name, "f4") for name in POINT_CLOUD_HDR
+    ]
     vertices = np.empty(points.shape[0], dtype=names)
     rgb = to_uint8(colours)
     for index, axis in enumerate("xyz"):
@@ -190,7 +203,8 @@ def load_point_cloud(path: Path) -> tuple[Tensor, Tensor, Tensor | None]:
         return torch.from_numpy(np.stack([np.asarray(vertex[key], dtype=np.float32) for key in keys], -1))
 
     points = columns("xyz")
-    colours = columns(("red", "green", "blue")) / 255.0 if {"red", "green", "blue"} <= names \
-        else torch.full_like(points, 0.5)
+    colours = (
+        columns(("red", "green", "blue")) / 255.0 if {"red", "green", "blue"} <= names else torch.full_like(points, 0.5)
+    )
     hdr = columns(POINT_CLOUD_HDR) if set(POINT_CLOUD_HDR) <= names else None
     return points, colours, hdr

@@ -13,14 +13,14 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from mono_hdr_plugin.apps.camera_paths import PathKind, camera_path
+from mono_hdr_plugin.apps.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.training.evaluation import first_per_camera, save_hdr_renders
-from mono_hdr_plugin.apps.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.training.pipeline import Frame
 from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
-from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
 
 console = Console(stderr=True)
 
@@ -71,14 +71,28 @@ class RenderConfig:
     strip: Path | None = None
     """Sweep: strip PNG of every frame side by side with its EV; default OUT/exposure_sweep.png."""
 
-    flag_rules: ClassVar = {"exposures": POSITIVE, "max_views": at_least(1), "frames": at_least(1),
-                            "fps": at_least(1), "ev": ANY_FINITE, "scale": POSITIVE, "view": NON_NEGATIVE,
-                            "ev_min": ANY_FINITE, "ev_max": ANY_FINITE}
+    flag_rules: ClassVar = {
+        "exposures": POSITIVE,
+        "max_views": at_least(1),
+        "frames": at_least(1),
+        "fps": at_least(1),
+        "ev": ANY_FINITE,
+        "scale": POSITIVE,
+        "view": NON_NEGATIVE,
+        "ev_min": ANY_FINITE,
+        "ev_max": ANY_FINITE,
+    }
 
 
 def progress_bar() -> Progress:
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    TimeRemainingColumn(), console=console)
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    )
 
 
 def render_command(config: RenderConfig) -> None:
@@ -99,12 +113,16 @@ def render_command(config: RenderConfig) -> None:
     views = model.scene.test if config.split == "test" and model.scene.test else model.scene.train
     if config.path is not None:
         video = config.video or config.out / f"path_{config.path}.mp4"
-        cameras = [even_sized(c.scaled(config.scale) if config.scale != 1 else c)
-                   for c in camera_path(config.path, model.scene, views, config.frames)]
-        render_path(model, cameras, video, output=config.output, ev=config.ev, fps=config.fps,
-                    exr_folder=config.exr_frames)
-        console.print(f"wrote {len(cameras)} frames to {video}"
-                      + (f" and {config.exr_frames}" if config.exr_frames else ""))
+        cameras = [
+            even_sized(c.scaled(config.scale) if config.scale != 1 else c)
+            for c in camera_path(config.path, model.scene, views, config.frames)
+        ]
+        render_path(
+            model, cameras, video, output=config.output, ev=config.ev, fps=config.fps, exr_folder=config.exr_frames
+        )
+        console.print(
+            f"wrote {len(cameras)} frames to {video}" + (f" and {config.exr_frames}" if config.exr_frames else "")
+        )
         return
     choices = first_per_camera(views)
     if not 0 <= config.view < len(choices):
@@ -125,12 +143,22 @@ def even_sized(camera: Camera) -> Camera:
         return camera
     if width == 0 or height == 0:
         raise ValueError(f"frames of {camera.width} x {camera.height} pixels are too small for a video: raise --scale")
-    return Camera(c2w=camera.c2w, fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=width, height=height,
-                  near=camera.near, far=camera.far)
+    return Camera(
+        c2w=camera.c2w,
+        fx=camera.fx,
+        fy=camera.fy,
+        cx=camera.cx,
+        cy=camera.cy,
+        width=width,
+        height=height,
+        near=camera.near,
+        far=camera.far,
+    )
 
 
-def display_frame(model: TrainedModel, camera: Camera, output: str, exposure: float,
-                  cached: Frame | None = None) -> tuple[Frame, np.ndarray]:
+def display_frame(
+    model: TrainedModel, camera: Camera, output: str, exposure: float, cached: Frame | None = None
+) -> tuple[Frame, np.ndarray]:
     """A frame of `camera` (re-used from `cached` when the output does not need a new render)
     and its uint8 display image."""
     if output not in OUTPUTS:
@@ -138,8 +166,10 @@ def display_frame(model: TrainedModel, camera: Camera, output: str, exposure: fl
     frame = cached
     if frame is None or (needs_render_at(output, model.exposure) and frame.exposure != exposure):
         frame = model.pipeline.render(
-            camera, exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure,
-            with_depth=output == "depth")
+            camera,
+            exposure if needs_render_at(output, model.exposure) else model.exposure.reference_exposure,
+            with_depth=output == "depth",
+        )
     return frame, to_uint8(to_display(frame, output, exposure, model.exposure))
 
 
@@ -147,15 +177,29 @@ def write_video(path: Path, frames, fps: int) -> None:
     """Write uint8 frames [H, W, 3] as H.264 MP4 at their own size, atomically."""
     with atomic_path(path) as temporary:
         # macro_block_size=1: keep the frame size (imageio-ffmpeg would otherwise resize to multiples of 16)
-        writer = imageio.get_writer(temporary, fps=fps, codec="libx264", quality=8, macro_block_size=1,
-                                    pixelformat="yuv420p", ffmpeg_log_level="error")
+        writer = imageio.get_writer(
+            temporary,
+            fps=fps,
+            codec="libx264",
+            quality=8,
+            macro_block_size=1,
+            pixelformat="yuv420p",
+            ffmpeg_log_level="error",
+        )
         with writer:  # imageio's stub types `with ... as` as the base class, which has no append_data
             for frame in frames:
                 writer.append_data(frame)
 
 
-def render_path(model: TrainedModel, cameras: list[Camera], video: Path, output: str = "ldr", ev: float = 0.0,
-                fps: int = 24, exr_folder: Path | None = None) -> None:
+def render_path(
+    model: TrainedModel,
+    cameras: list[Camera],
+    video: Path,
+    output: str = "ldr",
+    ev: float = 0.0,
+    fps: int = 24,
+    exr_folder: Path | None = None,
+) -> None:
     """Render `cameras` into `video` (and their linear HDR into exr_folder/frame_NNNNN_hdr.exr)."""
     exposure = model.exposure.exposure_at(ev)
 
@@ -172,8 +216,9 @@ def render_path(model: TrainedModel, cameras: list[Camera], video: Path, output:
     write_video(video, frames(), fps)
 
 
-def render_exposure_sweep(model: TrainedModel, camera: Camera, evs: list[float], video: Path, strip: Path,
-                          output: str = "ldr", fps: int = 6) -> list[np.ndarray]:
+def render_exposure_sweep(
+    model: TrainedModel, camera: Camera, evs: list[float], video: Path, strip: Path, output: str = "ldr", fps: int = 6
+) -> list[np.ndarray]:
     """One view at each EV in `evs`: an MP4 and a strip PNG (frames side by side, EV below each).
     Returns the uint8 frames."""
     images, frame = [], None
@@ -204,8 +249,13 @@ def exposure_strip(images: list[np.ndarray], evs: list[float], label_height: int
 
 
 @torch.no_grad()
-def render_checkpoint(checkpoint: Path, out: Path, exposures: tuple[float, ...] = (),
-                      max_views: int | None = None, scene: SceneData | None = None) -> list[Path]:
+def render_checkpoint(
+    checkpoint: Path,
+    out: Path,
+    exposures: tuple[float, ...] = (),
+    max_views: int | None = None,
+    scene: SceneData | None = None,
+) -> list[Path]:
     """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view
     of the checkpoint's own data (or of `scene`, an in-memory scene)."""
     for exposure in exposures:

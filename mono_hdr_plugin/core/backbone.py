@@ -5,8 +5,9 @@ per-primitive LDR colours plus a compositing function that renders ANY number of
 with the same weights, so the wrapper can render LDR and HDR in one pass.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import torch
 from torch import Tensor

@@ -42,8 +42,10 @@ class Camera:
             raise ValueError("camera pose contains NaN or Inf: check the poses file")
         rotation = self.c2w[:3, :3].double()
         if not torch.allclose(rotation @ rotation.T, torch.eye(3, dtype=torch.float64), atol=1e-3):
-            raise ValueError("camera rotation is not orthonormal: check the poses file "
-                             "(scaled or sheared rotations are not supported)")
+            raise ValueError(
+                "camera rotation is not orthonormal: check the poses file "
+                "(scaled or sheared rotations are not supported)"
+            )
         if not (0 < self.fx < math.inf and 0 < self.fy < math.inf):
             raise ValueError(f"focal lengths must be positive and finite, got fx={self.fx}, fy={self.fy}")
         if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
@@ -79,24 +81,34 @@ class Camera:
 
     def scaled(self, factor: float) -> "Camera":
         """The same camera with the image resized by `factor` (0.5 halves the resolution)."""
-        return replace(self, fx=self.fx * factor, fy=self.fy * factor, cx=self.cx * factor,
-                       cy=self.cy * factor, width=round(self.width * factor),
-                       height=round(self.height * factor), pixels=None)
+        return replace(
+            self,
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=self.cx * factor,
+            cy=self.cy * factor,
+            width=round(self.width * factor),
+            height=round(self.height * factor),
+            pixels=None,
+        )
 
     def pixel_centers(self) -> Tensor:
         """[N, 2] (x, y) pixel centres of the rendered pixels, row-major for a full image."""
         if self.pixels is not None:
             return self.pixels
-        ys, xs = torch.meshgrid(torch.arange(self.height, dtype=torch.float32) + 0.5,
-                                torch.arange(self.width, dtype=torch.float32) + 0.5, indexing="ij")
+        ys, xs = torch.meshgrid(
+            torch.arange(self.height, dtype=torch.float32) + 0.5,
+            torch.arange(self.width, dtype=torch.float32) + 0.5,
+            indexing="ij",
+        )
         return torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)
 
     def rays(self) -> tuple[Tensor, Tensor]:
         """World-space ray origins and unit directions, each [*output_shape, 3]."""
         pixels = self.pixel_centers()
-        directions_cam = torch.stack([(pixels[:, 0] - self.cx) / self.fx,
-                                      (pixels[:, 1] - self.cy) / self.fy,
-                                      torch.ones(pixels.shape[0])], -1)
+        directions_cam = torch.stack(
+            [(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy, torch.ones(pixels.shape[0])], -1
+        )
         directions = directions_cam @ self.c2w[:3, :3].T.float()
         directions = directions / directions.norm(dim=-1, keepdim=True)
         origins = self.c2w[:3, 3].float().expand_as(directions)

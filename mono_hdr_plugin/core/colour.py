@@ -39,7 +39,7 @@ def encode_curve(linear: np.ndarray, curve: ResponseCurve) -> np.ndarray:
     """Linear values through a standard response curve (not clipped), as float64."""
     if curve == "srgb":
         return _srgb_curve(torch.as_tensor(np.asarray(linear), dtype=torch.float64)).numpy()
-    import colour  # noqa: PLC0415 - colour-science is slow to import; only BT.709 needs it
+    import colour
 
     return np.asarray(colour.cctf_encoding(np.asarray(linear, np.float64), function="ITU-R BT.709"), np.float64)
 
@@ -48,6 +48,6 @@ def decode_curve(encoded: np.ndarray, curve: ResponseCurve) -> np.ndarray:
     """Inverse of `encode_curve` (not clipped), as float64."""
     if curve == "srgb":
         return _srgb_inverse(torch.as_tensor(np.asarray(encoded), dtype=torch.float64)).numpy()
-    import colour  # noqa: PLC0415 - see encode_curve
+    import colour
 
     return np.asarray(colour.cctf_decoding(np.asarray(encoded, np.float64), function="ITU-R BT.709"), np.float64)

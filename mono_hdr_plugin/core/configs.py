@@ -48,8 +48,11 @@ def _coerce(annotation: Any, value: Any) -> Any:
         if isinstance(value, dict):  # a union of config dataclasses: the one that has every field the values name
             for option in options:
                 config = typing.get_args(option)[0] if typing.get_origin(option) is typing.Annotated else option
-                if (isinstance(config, type) and dataclasses.is_dataclass(config)
-                        and set(value) <= {f.name for f in dataclasses.fields(config)}):
+                if (
+                    isinstance(config, type)
+                    and dataclasses.is_dataclass(config)
+                    and set(value) <= {f.name for f in dataclasses.fields(config)}
+                ):
                     return config_from_dict(config, value)
         return _coerce(options[0], value)
     if origin is typing.Annotated:

@@ -122,8 +122,9 @@ class H2LColorConverter(nn.Module):
     def forward(self, hdr: Tensor) -> Tensor:
         latent = F.relu(self.latent(hdr))
         # both heads in one product: half the passes over the [pixels, hidden] latent
-        heads = F.linear(latent, torch.cat([self.response.weight, self.bias.weight]),
-                         torch.cat([self.response.bias, self.bias.bias]))
+        heads = F.linear(
+            latent, torch.cat([self.response.weight, self.bias.weight]), torch.cat([self.response.bias, self.bias.bias])
+        )
         response, bias = heads.split(3, dim=-1)
         return torch.sigmoid(F.relu(response) + torch.tanh(bias))
 

@@ -36,5 +36,11 @@ def load_cpp_extension(name: str, source: Path) -> ModuleType:
     suffix, flags = vector_flags()
     build_dir = build_root / f"{name}_{suffix}"
     build_dir.mkdir(parents=True, exist_ok=True)
-    return load(name=f"mono_hdr_{name}_{suffix}", sources=[str(source)], extra_cflags=["-O3", "-fopenmp", *flags],
-                extra_ldflags=["-fopenmp"], build_directory=str(build_dir), verbose=False)
+    return load(
+        name=f"mono_hdr_{name}_{suffix}",
+        sources=[str(source)],
+        extra_cflags=["-O3", "-fopenmp", *flags],
+        extra_ldflags=["-fopenmp"],
+        build_directory=str(build_dir),
+        verbose=False,
+    )

@@ -95,15 +95,25 @@ class ViewExposures(nn.Module):
     reference_exposure: Tensor
     response: Tensor
 
-    def __init__(self, initial_log: Tensor, reference: int, reference_exposure: float, response: np.ndarray,
-                 learn: bool, learning_rate: float = 0.01, names: list[str] | None = None, known: bool = True):
+    def __init__(
+        self,
+        initial_log: Tensor,
+        reference: int,
+        reference_exposure: float,
+        response: np.ndarray,
+        learn: bool,
+        learning_rate: float = 0.01,
+        names: list[str] | None = None,
+        known: bool = True,
+    ):
         super().__init__()
         self.register_buffer("initial_log", initial_log.float())
         self.register_buffer("reference", torch.tensor(reference))
         self.register_buffer("reference_exposure", torch.tensor(float(reference_exposure)))
         self.register_buffer("response", torch.as_tensor(response, dtype=torch.float32))
-        self.correction = nn.ParameterList(nn.Parameter(torch.zeros(()), requires_grad=learn)
-                                           for _ in range(len(initial_log)))
+        self.correction = nn.ParameterList(
+            nn.Parameter(torch.zeros(()), requires_grad=learn) for _ in range(len(initial_log))
+        )
         self.lr = learning_rate
         self.names = names or [str(i) for i in range(len(initial_log))]
         self.known = known  # whether the data gave exposure times (else t_ref is a placeholder)
@@ -113,8 +123,9 @@ class ViewExposures(nn.Module):
         """An empty module shaped like the one saved under `prefix` (None when there is none)."""
         if f"{prefix}initial_log" not in state:
             return None
-        return cls(torch.zeros_like(state[f"{prefix}initial_log"]), 0, 1.0, state[f"{prefix}response"].numpy(),
-                   learn=False)
+        return cls(
+            torch.zeros_like(state[f"{prefix}initial_log"]), 0, 1.0, state[f"{prefix}response"].numpy(), learn=False
+        )
 
     @property
     def learned(self) -> bool:
@@ -170,11 +181,19 @@ class ViewExposures(nn.Module):
         relative = self.relative_exposures().tolist()
         initial = torch.exp(self.initial_log).tolist()
         reference_time = float(self.reference_exposure) if self.known else None
-        return {"reference": self.names[int(self.reference)], "learned": self.learned,
-                "reference_exposure": reference_time,
-                "views": {name: {"relative": value, "initial": start,
-                                 "seconds": None if reference_time is None else value * reference_time}
-                          for name, value, start in zip(self.names, relative, initial)}}
+        return {
+            "reference": self.names[int(self.reference)],
+            "learned": self.learned,
+            "reference_exposure": reference_time,
+            "views": {
+                name: {
+                    "relative": value,
+                    "initial": start,
+                    "seconds": None if reference_time is None else value * reference_time,
+                }
+                for name, value, start in zip(self.names, relative, initial)
+            },
+        }
 
 
 def choose_reference(exposures: list[float], brightness: list[float]) -> int:
@@ -198,8 +217,9 @@ def reference_view(views) -> int:
     return choose_reference([view.exposure for view in views], [float(view.image.mean()) for view in views])
 
 
-def photometric_log_exposures(views, points: Tensor, response: np.ndarray, reference: int,
-                              iterations: int = 10) -> np.ndarray:
+def photometric_log_exposures(
+    views, points: Tensor, response: np.ndarray, reference: int, iterations: int = 10
+) -> np.ndarray:
     """[V] ln(t_i / t_ref) measured from the photos: the points' linearised brightness in each view.
 
     Every point is projected into every view; a point counts only when its pixel in every view
@@ -255,6 +275,13 @@ def build_view_exposures(config: ExposureConfig, scene) -> ViewExposures | None:
     if missing and scene.points is not None:
         measured = photometric_log_exposures(scene.train, scene.points, response, reference)
         initial[missing] = measured[missing]
-    return ViewExposures(torch.from_numpy(initial), reference, exposures[reference], response, learn=learn,
-                         learning_rate=config.exposure_lr, names=[view.name for view in scene.train],
-                         known=not unknown)
+    return ViewExposures(
+        torch.from_numpy(initial),
+        reference,
+        exposures[reference],
+        response,
+        learn=learn,
+        learning_rate=config.exposure_lr,
+        names=[view.name for view in scene.train],
+        known=not unknown,
+    )

@@ -43,8 +43,7 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
         raise ValueError(f"ssim: shapes differ, {tuple(pred.shape)} vs {tuple(target.shape)}")
     height, width, channels = pred.shape
     if min(height, width) < 2 * SSIM_RADIUS + 1:
-        raise ValueError(f"ssim needs images of at least {2 * SSIM_RADIUS + 1} pixels per side, "
-                         f"got {height}x{width}")
+        raise ValueError(f"ssim needs images of at least {2 * SSIM_RADIUS + 1} pixels per side, got {height}x{width}")
     window = _gaussian_window(pred.dtype)
     # [1, 5C, H, W]: x, y, x^2, y^2, xy filtered together by one separable depthwise convolution
     # (as groups: on the CPU that is ~10x faster than the same filter over a batch of 5C images).
@@ -123,8 +122,9 @@ def load_lpips():
     try:
         import lpips  # optional dependency
     except ImportError as error:
-        raise LpipsUnavailable("LPIPS skipped: the 'lpips' package is not installed "
-                               "(pip install lpips, with its AlexNet weights cached)") from error
+        raise LpipsUnavailable(
+            "LPIPS skipped: the 'lpips' package is not installed (pip install lpips, with its AlexNet weights cached)"
+        ) from error
     try:
         return lpips.LPIPS(net="alex", verbose=False, pretrained=True)
     except Exception as error:  # a download attempt fails without network
@@ -133,6 +133,7 @@ def load_lpips():
 
 def lpips_distance(model, pred: Tensor, target: Tensor) -> float:
     """LPIPS between two images [H, W, 3] in [0, 1] (the network takes [-1, 1])."""
+
     def to_network(image: Tensor) -> Tensor:
         return image.permute(2, 0, 1).unsqueeze(0).float() * 2 - 1
 

@@ -11,9 +11,10 @@ imports neither.
 
 import dataclasses
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable, Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 from mono_hdr_plugin.core.backbone import Backbone
 
@@ -51,8 +52,10 @@ class PluginRegistry(Generic[Plugin]):
             existing = self._entries.get(name)
             if existing is not None and existing.plugin is not plugin:
                 label = getattr(plugin, "__qualname__", repr(plugin))
-                raise RegistryError(f"{self.kind} name {name!r} is already registered by {existing.source}; "
-                                    f"pick another name for {getattr(plugin, '__module__', '?')}.{label}")
+                raise RegistryError(
+                    f"{self.kind} name {name!r} is already registered by {existing.source}; "
+                    f"pick another name for {getattr(plugin, '__module__', '?')}.{label}"
+                )
             self._entries[name] = PluginEntry(name, plugin, source or f"python: {getattr(plugin, '__module__', '?')}")
             return plugin
 
@@ -73,8 +76,11 @@ class PluginRegistry(Generic[Plugin]):
             except Exception as error:  # a broken plugin must not take the others down
                 message = f"{type(error).__name__}: {error}"
                 self._broken[entry_point.name] = f"{source} failed to load: {message}"
-                warnings.warn(f"{self.kind} plugin {entry_point.name!r} ({entry_point.value}) failed to load "
-                              f"and is skipped: {message}", stacklevel=3)
+                warnings.warn(
+                    f"{self.kind} plugin {entry_point.name!r} ({entry_point.value}) failed to load "
+                    f"and is skipped: {message}",
+                    stacklevel=3,
+                )
 
     def available(self) -> dict[str, PluginEntry[Plugin]]:
         """Every working plugin by name, in registration order (entry points load on first call)."""
@@ -94,17 +100,21 @@ class PluginRegistry(Generic[Plugin]):
         if name in self._broken:
             raise RegistryError(f"{self.kind} {name!r} is installed but broken: {self._broken[name]}")
         known = ", ".join(available) or "none"
-        raise RegistryError(f"no {self.kind} named {name!r}; available: {known}. Register one with "
-                            f"the decorator or the {self.entry_point_group!r} entry-point group")
+        raise RegistryError(
+            f"no {self.kind} named {name!r}; available: {known}. Register one with "
+            f"the decorator or the {self.entry_point_group!r} entry-point group"
+        )
 
 
 def _validate_backbone(name: str, backbone_class: Any) -> None:
     if not (isinstance(backbone_class, type) and issubclass(backbone_class, Backbone)):
-        raise RegistryError(f"backbone {name!r}: {backbone_class!r} is not a subclass of "
-                            "mono_hdr_plugin.core.backbone.Backbone")
+        raise RegistryError(
+            f"backbone {name!r}: {backbone_class!r} is not a subclass of mono_hdr_plugin.core.backbone.Backbone"
+        )
     if not hasattr(backbone_class, "config_class"):
-        raise RegistryError(f"backbone {name!r}: {backbone_class.__name__} sets no "
-                            "`config_class` (a dataclass of its hyper-parameters)")
+        raise RegistryError(
+            f"backbone {name!r}: {backbone_class.__name__} sets no `config_class` (a dataclass of its hyper-parameters)"
+        )
 
 
 BACKBONES: PluginRegistry[type[Backbone]] = PluginRegistry("backbone", "mono_hdr.backbones", _validate_backbone)
@@ -114,13 +124,16 @@ get_backbone = BACKBONES.get
 
 
 def _validate_benchmark(name: str, config_class: Any) -> None:
-    if not (isinstance(config_class, type) and dataclasses.is_dataclass(config_class)
-            and callable(getattr(config_class, "run", None))):
-        raise RegistryError(f"benchmark {name!r}: {config_class!r} is not a config dataclass with a `run(self)` "
-                            "method")
+    if not (
+        isinstance(config_class, type)
+        and dataclasses.is_dataclass(config_class)
+        and callable(getattr(config_class, "run", None))
+    ):
+        raise RegistryError(f"benchmark {name!r}: {config_class!r} is not a config dataclass with a `run(self)` method")
     if "out" not in {field.name for field in dataclasses.fields(config_class)}:
-        raise RegistryError(f"benchmark {name!r}: {config_class.__name__} has no `out` field (the folder its "
-                            "results go to)")
+        raise RegistryError(
+            f"benchmark {name!r}: {config_class.__name__} has no `out` field (the folder its results go to)"
+        )
 
 
 BENCHMARKS: PluginRegistry[type] = PluginRegistry("benchmark", "mono_hdr.benchmarks", _validate_benchmark)

@@ -17,8 +17,9 @@ can express, raises FlagError itself, naming both flags.
 import dataclasses
 import math
 import typing
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any
 
 import tyro
 
@@ -51,8 +52,10 @@ class Rule:
             return f"{kind} {'>' if self.low_open else '>='} {_bound(self.low)}"
         if self.low is None:
             return f"{kind} {'<' if self.high_open else '<='} {_bound(self.high)}"
-        return (f"{kind} in {'(' if self.low_open else '['}{_bound(self.low)}, {_bound(self.high)}"
-                f"{')' if self.high_open else ']'}")
+        return (
+            f"{kind} in {'(' if self.low_open else '['}{_bound(self.low)}, {_bound(self.high)}"
+            f"{')' if self.high_open else ']'}"
+        )
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,8 @@ def rules_of(config_class: type) -> dict[str, Rule | Choice]:
 
 def _omits_prefix(annotation: Any) -> bool:
     return typing.get_origin(annotation) is typing.Annotated and any(
-        marker is tyro.conf.OmitArgPrefixes for marker in typing.get_args(annotation)[1:])
+        marker is tyro.conf.OmitArgPrefixes for marker in typing.get_args(annotation)[1:]
+    )
 
 
 def iter_flags(config: Any, prefix: str = "--") -> Iterator[tuple[str, Any, Rule | Choice | None]]:

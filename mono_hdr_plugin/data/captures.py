@@ -5,9 +5,10 @@ camera-to-world), its split, and its photos at one or more exposures, loaded laz
 single-exposure run never decodes the other exposures. Layout writers consume the same.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 import torch

@@ -31,5 +31,9 @@ class DataConfig:
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
 
-    flag_rules: ClassVar = {"exposure_index": between(0, 2), "fixed_exposure": POSITIVE, "downscale": POSITIVE,
-                            "exposure_seed": SEED}
+    flag_rules: ClassVar = {
+        "exposure_index": between(0, 2),
+        "fixed_exposure": POSITIVE,
+        "downscale": POSITIVE,
+        "exposure_seed": SEED,
+    }

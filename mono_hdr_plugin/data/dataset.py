@@ -20,9 +20,11 @@ def check_hdr_ground_truth(hdr, label: str) -> str | None:
     flat = torch.as_tensor(hdr).reshape(-1, 3)
     negative = flat < 0
     if negative.any():
-        raise DatasetError(f"{label}: HDR ground truth has {int(negative.any(-1).sum())} pixel(s) with negative "
-                           f"values (down to {float(flat.min()):.4g}); radiance is never negative: export it as "
-                           "linear, unclamped values (clamp small filter ringing to 0)")
+        raise DatasetError(
+            f"{label}: HDR ground truth has {int(negative.any(-1).sum())} pixel(s) with negative "
+            f"values (down to {float(flat.min()):.4g}); radiance is never negative: export it as "
+            "linear, unclamped values (clamp small filter ringing to 0)"
+        )
     if not bool((flat != 0).any()):
         return "is all zero"
     if bool((flat == flat[0]).all()):
@@ -45,8 +47,11 @@ def without_uninformative_hdr(views: list["View"]) -> tuple[list["View"], list[s
 
 def warn_uninformative_hdr(scene: str, notes: list[str]) -> None:
     listing = "; ".join(notes[:5]) + (f"; and {len(notes) - 5} more" if len(notes) > 5 else "")
-    warnings.warn(f"scene {scene!r}: the HDR ground truth of {len(notes)} view(s) carries no HDR information and is "
-                  f"not used for training or HDR metrics ({listing}); re-export it if it should", stacklevel=3)
+    warnings.warn(
+        f"scene {scene!r}: the HDR ground truth of {len(notes)} view(s) carries no HDR information and is "
+        f"not used for training or HDR metrics ({listing}); re-export it if it should",
+        stacklevel=3,
+    )
 
 
 @dataclass
@@ -73,14 +78,14 @@ class View:
         label = self.name or f"view {self.view_id}"
         expected = (self.camera.height, self.camera.width, 3)
         if tuple(self.image.shape) != expected:
-            raise ValueError(f"{label}: image has shape {tuple(self.image.shape)}, camera expects "
-                             f"{expected}; resize the image or fix the intrinsics")
+            raise ValueError(
+                f"{label}: image has shape {tuple(self.image.shape)}, camera expects "
+                f"{expected}; resize the image or fix the intrinsics"
+            )
         if not (self.exposure > 0 and torch.isfinite(torch.tensor(self.exposure))):
-            raise ValueError(f"{label}: exposure time must be a positive number of seconds, "
-                             f"got {self.exposure}")
+            raise ValueError(f"{label}: exposure time must be a positive number of seconds, got {self.exposure}")
         if self.hdr is not None and tuple(self.hdr.shape) != expected:
-            raise ValueError(f"{label}: HDR ground truth has shape {tuple(self.hdr.shape)}, "
-                             f"expected {expected}")
+            raise ValueError(f"{label}: HDR ground truth has shape {tuple(self.hdr.shape)}, expected {expected}")
         # NaN in the data would make every step on this view non-finite, skipped by the trainer
         for what, pixels in (("image", self.image), ("HDR ground truth", self.hdr)):
             if pixels is not None and not torch.isfinite(pixels).all():
@@ -118,8 +123,10 @@ class SceneData:
         for split, views in (("train", self.train), ("test", self.test)):
             for view in views:
                 camera = view.camera
-                digest.update(f"{split}|{view.name}|{view.exposure!r}|{camera.width}x{camera.height}|{camera.fx!r}|"
-                              f"{camera.fy!r}|{camera.cx!r}|{camera.cy!r}|{camera.near!r}|{camera.far!r}|".encode())
+                digest.update(
+                    f"{split}|{view.name}|{view.exposure!r}|{camera.width}x{camera.height}|{camera.fx!r}|"
+                    f"{camera.fy!r}|{camera.cx!r}|{camera.cy!r}|{camera.near!r}|{camera.far!r}|".encode()
+                )
                 for tensor in (camera.c2w, view.image, view.hdr):
                     if tensor is not None:
                         digest.update(tensor.detach().float().contiguous().numpy().tobytes())
@@ -134,6 +141,10 @@ class SceneData:
         return sorted({v.exposure for v in self.test})
 
     def scene_info(self) -> SceneInfo:
-        return SceneInfo(bounds_min=self.bounds_min, bounds_max=self.bounds_max,
-                         train_cameras=[v.camera for v in self.train],
-                         points=self.points, point_colors=self.point_colors)
+        return SceneInfo(
+            bounds_min=self.bounds_min,
+            bounds_max=self.bounds_max,
+            train_cameras=[v.camera for v in self.train],
+            points=self.points,
+            point_colors=self.point_colors,
+        )

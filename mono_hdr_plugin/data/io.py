@@ -84,16 +84,19 @@ def check_readable(path: Path) -> None:
         with open(path, "rb"):
             pass
     except OSError as error:
-        raise DatasetError(f"{path}: cannot be opened ({error.strerror}); fix its permissions "
-                           "(e.g. `chmod u+r`)") from error
+        raise DatasetError(
+            f"{path}: cannot be opened ({error.strerror}); fix its permissions (e.g. `chmod u+r`)"
+        ) from error
 
 
 def _to_rgb(pixels: np.ndarray, path: Path) -> np.ndarray:
     """[H, W, C] with C in {3, 4} -> [H, W, 3]; any other channel count is an error."""
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4):
         channels = 1 if pixels.ndim == 2 else pixels.shape[-1]
-        raise DatasetError(f"{path}: image has {channels} channel(s), expected RGB or RGBA; "
-                           "convert it to RGB (e.g. `convert in.png -type TrueColor out.png`)")
+        raise DatasetError(
+            f"{path}: image has {channels} channel(s), expected RGB or RGBA; "
+            "convert it to RGB (e.g. `convert in.png -type TrueColor out.png`)"
+        )
     return pixels[..., :3]
 
 
@@ -107,8 +110,9 @@ def _png_bit_depth(path: Path) -> int | None:
 
 
 def _corrupt(path: Path, error: Exception) -> DatasetError:
-    return DatasetError(f"{path}: cannot decode the image ({error}); the file is truncated or "
-                        "corrupt: copy or export it again")
+    return DatasetError(
+        f"{path}: cannot decode the image ({error}); the file is truncated or corrupt: copy or export it again"
+    )
 
 
 def _read_png16(path: Path) -> np.ndarray:
@@ -116,7 +120,7 @@ def _read_png16(path: Path) -> np.ndarray:
 
     try:
         pixels = np.array(mitsuba.Bitmap(str(path)))
-    except Exception as error:  # noqa: BLE001 - libpng reports corruption as RuntimeError
+    except Exception as error:
         raise _corrupt(path, error) from error
     return _to_rgb(pixels, path).astype(np.float32) / 65535.0
 
@@ -132,8 +136,9 @@ def _read_with_pillow(path: Path) -> np.ndarray:
     except (OSError, UnidentifiedImageError, SyntaxError) as error:
         raise _corrupt(path, error) from error
     if pixels.dtype != np.uint8:
-        raise DatasetError(f"{path}: unsupported pixel type {pixels.dtype} ({image.mode}); "
-                           "save it as 8- or 16-bit RGB PNG or JPEG")
+        raise DatasetError(
+            f"{path}: unsupported pixel type {pixels.dtype} ({image.mode}); save it as 8- or 16-bit RGB PNG or JPEG"
+        )
     return _to_rgb(pixels, path).astype(np.float32) / 255.0
 
 
@@ -181,8 +186,7 @@ def _exr_rgb(channels: dict, path: Path) -> np.ndarray:
             return channels[name].pixels[..., :3]
     if all(c in channels for c in "RGB"):
         return np.stack([channels[c].pixels for c in "RGB"], -1)
-    raise DatasetError(f"{path}: EXR has channels {sorted(channels)}, expected R, G, B; "
-                       "re-export it as an RGB EXR")
+    raise DatasetError(f"{path}: EXR has channels {sorted(channels)}, expected R, G, B; re-export it as an RGB EXR")
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
@@ -192,14 +196,17 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
     path = _existing(path)
     try:
         channels = OpenEXR.File(str(path)).channels()
-    except Exception as error:  # noqa: BLE001 - OpenEXR reports everything as RuntimeError
-        raise DatasetError(f"{path}: cannot read the EXR ({error}); the file is truncated or "
-                           "corrupt: export it again") from error
+    except Exception as error:
+        raise DatasetError(
+            f"{path}: cannot read the EXR ({error}); the file is truncated or corrupt: export it again"
+        ) from error
     pixels = _exr_rgb(channels, path).astype(np.float32)
     bad = ~np.isfinite(pixels)
     if bad.any():
-        raise DatasetError(f"{path}: {int(bad.any(-1).sum())} pixel(s) are NaN or Inf; "
-                           "re-render or repair the file (e.g. replace them by neighbours)")
+        raise DatasetError(
+            f"{path}: {int(bad.any(-1).sum())} pixel(s) are NaN or Inf; "
+            "re-render or repair the file (e.g. replace them by neighbours)"
+        )
     return pixels
 
 
@@ -212,8 +219,10 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False) ->
 
     image = _check_image(image, str(path))
     if half and np.abs(image).max(initial=0.0) > FLOAT16_MAX:
-        raise DatasetError(f"{path}: values up to {np.abs(image).max():.4g} overflow half "
-                           f"floats (max {FLOAT16_MAX}); write with half=False or scale the image")
+        raise DatasetError(
+            f"{path}: values up to {np.abs(image).max():.4g} overflow half "
+            f"floats (max {FLOAT16_MAX}); write with half=False or scale the image"
+        )
     # OpenEXR writes wrong pixels from non-contiguous arrays, so always pass a fresh copy.
     pixels = np.ascontiguousarray(image, dtype=np.float16 if half else np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}

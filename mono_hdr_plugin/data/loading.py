@@ -7,6 +7,7 @@ from pathlib import PurePosixPath
 import numpy as np
 import torch
 
+from mono_hdr_plugin.core.validation import check_flags
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View, check_hdr_ground_truth, warn_uninformative_hdr
@@ -14,7 +15,6 @@ from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
 from mono_hdr_plugin.data.sources import named_scene, scene_names
-from mono_hdr_plugin.core.validation import check_flags
 
 
 def captured_scene(config: DataConfig) -> CapturedScene:
@@ -23,8 +23,9 @@ def captured_scene(config: DataConfig) -> CapturedScene:
         return read_layout(config.data, config.layout)
     if config.scene is not None:
         return named_scene(config.scene, seed=config.exposure_seed)
-    raise DatasetError("no scene given: pass --data FOLDER or --scene NAME "
-                       f"(built-in scenes: {', '.join(scene_names())})")
+    raise DatasetError(
+        f"no scene given: pass --data FOLDER or --scene NAME (built-in scenes: {', '.join(scene_names())})"
+    )
 
 
 def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
@@ -33,8 +34,10 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
         return image
     height, width = image.shape[0] // factor, image.shape[1] // factor
     if height == 0 or width == 0:
-        raise DatasetError(f"{label}: image {image.shape[1]}x{image.shape[0]} is smaller than "
-                           f"--downscale {factor}; use a smaller factor")
+        raise DatasetError(
+            f"{label}: image {image.shape[1]}x{image.shape[0]} is smaller than "
+            f"--downscale {factor}; use a smaller factor"
+        )
     blocks = image[: height * factor, : width * factor].reshape(height, factor, width, factor, 3)
     return blocks.mean(axis=(1, 3), dtype=np.float32)
 
@@ -55,10 +58,18 @@ def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[floa
         else:
             hdr = torch.from_numpy(downscale_image(pixels, factor, label))
     token = PurePosixPath(view.name).name or f"{view.view_id:03d}"
-    return [View(camera=camera, image=torch.from_numpy(downscale_image(shot.image(), factor, shot.name)),
-                 exposure=float(shot.exposure), view_id=view.view_id, name=shot.name, hdr=hdr,
-                 stem=f"{token}_t{exposure_level(levels, shot.exposure)}")
-            for shot in shots]
+    return [
+        View(
+            camera=camera,
+            image=torch.from_numpy(downscale_image(shot.image(), factor, shot.name)),
+            exposure=float(shot.exposure),
+            view_id=view.view_id,
+            name=shot.name,
+            hdr=hdr,
+            stem=f"{token}_t{exposure_level(levels, shot.exposure)}",
+        )
+        for shot in shots
+    ]
 
 
 def exposure_level(levels: list[float], exposure: float) -> int:
@@ -70,11 +81,12 @@ def check_same_size(scene: CapturedScene, views: list[View]) -> None:
     """Every image of a scene must have one size: a backbone renders one image size."""
     sizes = {(v.camera.width, v.camera.height) for v in views}
     if len(sizes) > 1:
-        examples = {size: next(v.name for v in views if (v.camera.width, v.camera.height) == size)
-                    for size in sizes}
+        examples = {size: next(v.name for v in views if (v.camera.width, v.camera.height) == size) for size in sizes}
         listing = ", ".join(f"{name} is {w}x{h}" for (w, h), name in examples.items())
-        raise DatasetError(f"scene {scene.name!r} mixes image sizes ({listing}); resize all images "
-                           "to one size (and scale the intrinsics with them)")
+        raise DatasetError(
+            f"scene {scene.name!r} mixes image sizes ({listing}); resize all images "
+            "to one size (and scale the intrinsics with them)"
+        )
 
 
 def warn_partial_hdr(scene: CapturedScene) -> None:
@@ -85,9 +97,12 @@ def warn_partial_hdr(scene: CapturedScene) -> None:
     lacking = [view.name or str(view.view_id) for view in scene.views if view.hdr is None]
     if 0 < len(lacking) < len(scene.views):
         listing = ", ".join(lacking[:5]) + (f" and {len(lacking) - 5} more" if len(lacking) > 5 else "")
-        warnings.warn(f"scene {scene.name!r} ({scene.metadata.get('source', 'in memory')}): {len(lacking)} of "
-                      f"{len(scene.views)} views have no HDR ground truth ({listing}); they get no HDR loss "
-                      "and no HDR metrics. Add their EXR files if they were meant to have them.", stacklevel=2)
+        warnings.warn(
+            f"scene {scene.name!r} ({scene.metadata.get('source', 'in memory')}): {len(lacking)} of "
+            f"{len(scene.views)} views have no HDR ground truth ({listing}); they get no HDR loss "
+            "and no HDR metrics. Add their EXR files if they were meant to have them.",
+            stacklevel=2,
+        )
 
 
 def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
@@ -102,11 +117,17 @@ def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
     if notes:
         warn_uninformative_hdr(scene.name, notes)
     check_same_size(scene, splits["train"] + splits["test"])
-    metadata = {**scene.metadata, "protocol": config.protocol,
-                "exposure_levels": scene.exposure_levels}
-    return SceneData(name=scene.name, train=splits["train"], test=splits["test"],
-                     bounds_min=scene.bounds_min, bounds_max=scene.bounds_max, points=scene.points,
-                     point_colors=scene.point_colors, metadata=metadata)
+    metadata = {**scene.metadata, "protocol": config.protocol, "exposure_levels": scene.exposure_levels}
+    return SceneData(
+        name=scene.name,
+        train=splits["train"],
+        test=splits["test"],
+        bounds_min=scene.bounds_min,
+        bounds_max=scene.bounds_max,
+        points=scene.points,
+        point_colors=scene.point_colors,
+        metadata=metadata,
+    )
 
 
 def load_scene(config: DataConfig) -> SceneData:

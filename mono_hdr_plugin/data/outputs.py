@@ -23,8 +23,8 @@ import re
 import shutil
 import socket
 import time
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Iterable, Iterator
 
 from rich.console import Console
 
@@ -46,9 +46,12 @@ def _describe(claim: dict | None) -> str:
     if not claim:
         return "another mono-hdr command (its claim file is still being written)"
     started = claim.get("started")
-    when = time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(started)) if isinstance(started, (int, float)) \
-        else ""
-    return f"`mono-hdr {claim.get('command', '?')}` (PID {claim.get('pid', '?')} on host {claim.get('host', '?')}{when})"
+    when = (
+        time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(started)) if isinstance(started, (int, float)) else ""
+    )
+    return (
+        f"`mono-hdr {claim.get('command', '?')}` (PID {claim.get('pid', '?')} on host {claim.get('host', '?')}{when})"
+    )
 
 
 def _read_claim(handle) -> dict | None:
@@ -97,8 +100,10 @@ def check_not_inputs(target: Path, inputs: Iterable[Path | None], action: str = 
         source_resolved = Path(source).resolve()
         if _within(source_resolved, resolved) or _within(resolved, source_resolved):
             relation = "holds" if _within(source_resolved, resolved) else "lies inside"
-            raise OutputError(f"{action} {target}, which {relation} the input {source}; nothing was removed: "
-                              "choose an output folder apart from your inputs")
+            raise OutputError(
+                f"{action} {target}, which {relation} the input {source}; nothing was removed: "
+                "choose an output folder apart from your inputs"
+            )
 
 
 def check_replaceable(folder: Path, marker: Path, inputs: Iterable[Path | None], action: str) -> None:
@@ -108,12 +113,22 @@ def check_replaceable(folder: Path, marker: Path, inputs: Iterable[Path | None],
         return
     check_not_inputs(folder, inputs, action)
     if not marker.is_file():
-        raise OutputError(f"{action} {folder}, which this command did not write (it has no {marker.name}); nothing "
-                          "was removed: choose a new --out, or remove the folder yourself")
+        raise OutputError(
+            f"{action} {folder}, which this command did not write (it has no {marker.name}); nothing "
+            "was removed: choose a new --out, or remove the folder yourself"
+        )
 
 
-def plan_output(folder: Path, command: str, owned: tuple[str, ...] | None, inputs: Iterable[Path | None],
-                overwrite: bool, keep: bool, previous: dict | None, keep_hint: str = "") -> list[Path]:
+def plan_output(
+    folder: Path,
+    command: str,
+    owned: tuple[str, ...] | None,
+    inputs: Iterable[Path | None],
+    overwrite: bool,
+    keep: bool,
+    previous: dict | None,
+    keep_hint: str = "",
+) -> list[Path]:
     """What has to go before `command` writes `folder` (nothing when no earlier output is in the way).
 
     keep: continue the earlier output in place: train --resume (its checkpoint is checked when it is
@@ -126,17 +141,23 @@ def plan_output(folder: Path, command: str, owned: tuple[str, ...] | None, input
         return []
     listing = ", ".join(_entry_name(p) for p in existing[:5]) + (" ..." if len(existing) > 5 else "")
     if previous is None:
-        raise OutputError(f"--out {folder} holds {listing}, which mono-hdr did not write (no {RUN_FILE}); nothing "
-                          "is replaced there, even with --overwrite: choose another --out")
+        raise OutputError(
+            f"--out {folder} holds {listing}, which mono-hdr did not write (no {RUN_FILE}); nothing "
+            "is replaced there, even with --overwrite: choose another --out"
+        )
     earlier = previous.get("command", "?")
     if owned is None and earlier != command:
-        raise OutputError(f"--out {folder} holds the output of `mono-hdr {earlier}`; `mono-hdr {command}` writes "
-                          "into a folder of its own: choose another --out")
+        raise OutputError(
+            f"--out {folder} holds the output of `mono-hdr {earlier}`; `mono-hdr {command}` writes "
+            "into a folder of its own: choose another --out"
+        )
     if keep:
         return []
     if not overwrite:
-        raise OutputError(f"--out {folder} holds the output of an earlier `mono-hdr {earlier}` ({listing}); "
-                          f"{keep_hint}pass --overwrite to replace it, or choose another --out")
+        raise OutputError(
+            f"--out {folder} holds the output of an earlier `mono-hdr {earlier}` ({listing}); "
+            f"{keep_hint}pass --overwrite to replace it, or choose another --out"
+        )
     root, inputs = folder.resolve(), list(inputs)
     for path in existing:
         location = path.parent.resolve() / path.name
@@ -146,8 +167,15 @@ def plan_output(folder: Path, command: str, owned: tuple[str, ...] | None, input
     return existing
 
 
-def check_output(folder: Path, command: str, owned: tuple[str, ...] | None, inputs: Iterable[Path | None] = (),
-                 overwrite: bool = False, keep: bool = False, keep_hint: str = "") -> None:
+def check_output(
+    folder: Path,
+    command: str,
+    owned: tuple[str, ...] | None,
+    inputs: Iterable[Path | None] = (),
+    overwrite: bool = False,
+    keep: bool = False,
+    keep_hint: str = "",
+) -> None:
     """The read-only part of `claim_output`, for refusing early (before data is loaded): --out is
     not a file, and no earlier output is in the way. `claim_output` checks again under its lock."""
     folder = Path(folder)
@@ -226,11 +254,15 @@ def _lock(folder: Path):
         except BlockingIOError:
             holder = _read_claim(handle)
             handle.close()
-            raise OutputError(f"--out {folder} is being written by {_describe(holder)}; wait for it to finish or "
-                              "choose another --out") from None
+            raise OutputError(
+                f"--out {folder} is being written by {_describe(holder)}; wait for it to finish or choose another --out"
+            ) from None
         except OSError as error:  # a file system without locks (some network mounts): go on, and say so
-            console.print(f"note: {folder}: this file system cannot lock files ({error.strerror}); a second command "
-                          "writing this folder at the same time would not be noticed", markup=False)
+            console.print(
+                f"note: {folder}: this file system cannot lock files ({error.strerror}); a second command "
+                "writing this folder at the same time would not be noticed",
+                markup=False,
+            )
             return handle
         with contextlib.suppress(FileNotFoundError):
             if os.stat(folder / RUN_FILE).st_ino == os.fstat(handle.fileno()).st_ino:
@@ -240,8 +272,15 @@ def _lock(folder: Path):
 
 
 @contextlib.contextmanager
-def claim_output(folder: Path, command: str, owned: tuple[str, ...] | None, inputs: Iterable[Path | None] = (),
-                 overwrite: bool = False, keep: bool = False, keep_hint: str = "") -> Iterator[OutputClaim]:
+def claim_output(
+    folder: Path,
+    command: str,
+    owned: tuple[str, ...] | None,
+    inputs: Iterable[Path | None] = (),
+    overwrite: bool = False,
+    keep: bool = False,
+    keep_hint: str = "",
+) -> Iterator[OutputClaim]:
     """Hold `folder` for `command` while the body writes it; see the module docstring.
 
     owned: the names inside the folder the command writes (None: the whole folder is its output).
@@ -261,22 +300,30 @@ def claim_output(folder: Path, command: str, owned: tuple[str, ...] | None, inpu
         previous = _read_claim(handle)
         if previous is not None and previous.get("state", "running") == "running":
             if previous.get("host", host) != host:
-                raise OutputError(f"--out {folder} is claimed by {_describe(previous)}, another machine, which "
-                                  f"cannot be checked from here; if that run has stopped, delete {folder / RUN_FILE}")
-            console.print(f"note: {folder} was left claimed by {_describe(previous)}, which is no longer running; "
-                          "taking it over", markup=False)
+                raise OutputError(
+                    f"--out {folder} is claimed by {_describe(previous)}, another machine, which "
+                    f"cannot be checked from here; if that run has stopped, delete {folder / RUN_FILE}"
+                )
+            console.print(
+                f"note: {folder} was left claimed by {_describe(previous)}, which is no longer running; taking it over",
+                markup=False,
+            )
         removals = plan_output(folder, command, owned, inputs, overwrite, keep, previous, keep_hint)
         try:
-            _write_claim(handle, {"command": command, "pid": os.getpid(), "host": host, "started": time.time(),
-                                  "state": "running"})
+            _write_claim(
+                handle,
+                {"command": command, "pid": os.getpid(), "host": host, "started": time.time(), "state": "running"},
+            )
         except OSError as error:
             raise OutputError(f"--out {folder} cannot be written ({error.strerror}); {os_error_fix(error)}") from error
         claimed = True
         leftovers = clean_interrupted_writes(folder, owned)
         if leftovers:
             names = ", ".join(str(p.relative_to(folder)) for p in leftovers[:5])
-            console.print(f"note: removed {len(leftovers)} temporary file(s) an interrupted write left in {folder}: "
-                          f"{names}", markup=False)
+            console.print(
+                f"note: removed {len(leftovers)} temporary file(s) an interrupted write left in {folder}: {names}",
+                markup=False,
+            )
         yield OutputClaim(folder, removals)
         outcome = "finished"
     finally:

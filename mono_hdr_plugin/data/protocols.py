@@ -23,8 +23,10 @@ def training_levels(levels: list[float]) -> list[float]:
         return [levels[0], levels[2], levels[4]]
     if len(levels) == 3:
         return list(levels)
-    raise DatasetError(f"the data has {len(levels)} exposure level(s) {levels}; the single and multi "
-                       "protocols need 3 or 5 (t1..t5): use --protocol fixed --fixed-exposure SECONDS")
+    raise DatasetError(
+        f"the data has {len(levels)} exposure level(s) {levels}; the single and multi "
+        "protocols need 3 or 5 (t1..t5): use --protocol fixed --fixed-exposure SECONDS"
+    )
 
 
 def _shot_at(view: CapturedView, exposure: float, argument: str) -> Shot:
@@ -32,8 +34,9 @@ def _shot_at(view: CapturedView, exposure: float, argument: str) -> Shot:
         if np.isclose(shot.exposure, exposure, rtol=1e-3, atol=0):
             return shot
     have = [shot.exposure for shot in view.shots]
-    raise DatasetError(f"view {view.name or view.view_id} has no photo at {exposure} s (it has {have}); "
-                       f"choose another {argument}")
+    raise DatasetError(
+        f"view {view.name or view.view_id} has no photo at {exposure} s (it has {have}); choose another {argument}"
+    )
 
 
 def _single(scene: CapturedScene, config: DataConfig):
@@ -51,8 +54,7 @@ def _multi(scene: CapturedScene, config: DataConfig):
         if view.split == "test":
             chosen[id(view)] = list(view.shots)
             continue
-        candidates = [shot for shot in view.shots
-                      if np.isclose(shot.exposure, allowed, rtol=1e-3, atol=0).any()]
+        candidates = [shot for shot in view.shots if np.isclose(shot.exposure, allowed, rtol=1e-3, atol=0).any()]
         if not candidates:
             raise DatasetError(f"view {view.name or view.view_id} has no photo at t1/t3/t5 {allowed}")
         chosen[id(view)] = [candidates[rng.integers(len(candidates))]]
@@ -61,10 +63,11 @@ def _multi(scene: CapturedScene, config: DataConfig):
 
 def _fixed(scene: CapturedScene, config: DataConfig):
     if config.fixed_exposure is None or not config.fixed_exposure > 0:
-        raise DatasetError("--protocol fixed needs --fixed-exposure SECONDS (a positive exposure "
-                           f"the data has: {scene.exposure_levels})")
-    return {id(view): [_shot_at(view, config.fixed_exposure, "--fixed-exposure")]
-            for view in scene.views}
+        raise DatasetError(
+            "--protocol fixed needs --fixed-exposure SECONDS (a positive exposure "
+            f"the data has: {scene.exposure_levels})"
+        )
+    return {id(view): [_shot_at(view, config.fixed_exposure, "--fixed-exposure")] for view in scene.views}
 
 
 PROTOCOLS = {"single": _single, "multi": _multi, "fixed": _fixed}

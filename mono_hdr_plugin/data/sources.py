@@ -7,9 +7,9 @@ through that group, so `mono_hdr_plugin.data` never imports it.
 
 from typing import Any
 
+from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 
 
 class SceneSource:
@@ -28,8 +28,7 @@ def _validate_source(name: str, source: Any) -> None:
         raise RegistryError(f"scene source {name!r}: {source!r} is not a mono_hdr_plugin.data.sources.SceneSource")
 
 
-SCENE_SOURCES: PluginRegistry[SceneSource] = PluginRegistry("scene source", "mono_hdr.scene_sources",
-                                                            _validate_source)
+SCENE_SOURCES: PluginRegistry[SceneSource] = PluginRegistry("scene source", "mono_hdr.scene_sources", _validate_source)
 register_scene_source = SCENE_SOURCES.register
 
 
@@ -45,7 +44,10 @@ def named_scene(name: str, seed: int = 0) -> CapturedScene:
             return entry.plugin.captured_scene(name, seed)
     names = scene_names()
     if not names:
-        raise DatasetError(f"--scene {name!r}: no scene source is installed (the studio registers through the "
-                           "'mono_hdr.scene_sources' entry point): reinstall the package, `pip install -e .`")
-    raise DatasetError(f"unknown scene {name!r}; choose one of {', '.join(names)} (`mono-hdr scenes`), "
-                       "or pass --data FOLDER")
+        raise DatasetError(
+            f"--scene {name!r}: no scene source is installed (the studio registers through the "
+            "'mono_hdr.scene_sources' entry point): reinstall the package, `pip install -e .`"
+        )
+    raise DatasetError(
+        f"unknown scene {name!r}; choose one of {', '.join(names)} (`mono-hdr scenes`), or pass --data FOLDER"
+    )

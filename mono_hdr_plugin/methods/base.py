@@ -59,8 +59,13 @@ class MethodConfig:
     # The method's own flags, an instance of its options_class (None: its defaults), flagged without a prefix.
     options: Annotated[Any, tyro.conf.OmitArgPrefixes] = None
 
-    flag_rules: ClassVar = {"hidden": at_least(1), "alpha": NON_NEGATIVE, "beta": NON_NEGATIVE,
-                            "dssim_weight": FRACTION, "converter_lr": POSITIVE}
+    flag_rules: ClassVar = {
+        "hidden": at_least(1),
+        "alpha": NON_NEGATIVE,
+        "beta": NON_NEGATIVE,
+        "dssim_weight": FRACTION,
+        "converter_lr": POSITIVE,
+    }
 
     def __post_init__(self) -> None:
         if self.options is None and self.method in METHODS.available():
@@ -118,9 +123,11 @@ class HdrMethod(nn.Module):
         self.config = config
         self.options = self.options_class() if config.options is None else config.options
         if type(self.options) is not self.options_class:
-            raise TypeError(f"method {config.method!r} takes {self.options_class.__name__} options, not "
-                            f"{type(self.options).__name__}: build its config as MethodConfig(method="
-                            f"{config.method!r}) or with train_config_for(..., {config.method!r})")
+            raise TypeError(
+                f"method {config.method!r} takes {self.options_class.__name__} options, not "
+                f"{type(self.options).__name__}: build its config as MethodConfig(method="
+                f"{config.method!r}) or with train_config_for(..., {config.method!r})"
+            )
         self.loss_kind = loss_kind if config.loss == "auto" else config.loss
         self.beta = DEFAULT_BETA[loss_kind] if config.beta is None else config.beta
 
@@ -163,8 +170,9 @@ class HdrMethod(nn.Module):
 
 def _validate_method(name: str, method_class: Any) -> None:
     if not (isinstance(method_class, type) and issubclass(method_class, HdrMethod)):
-        raise RegistryError(f"method {name!r}: {method_class!r} is not a subclass of "
-                            "mono_hdr_plugin.methods.base.HdrMethod")
+        raise RegistryError(
+            f"method {name!r}: {method_class!r} is not a subclass of mono_hdr_plugin.methods.base.HdrMethod"
+        )
 
 
 METHODS: PluginRegistry[type[HdrMethod]] = PluginRegistry("method", "mono_hdr.methods", _validate_method)
@@ -192,11 +200,17 @@ def method_config_for(name: str) -> type[MethodConfig]:
     method_class = METHODS.get(name)
     if (name, method_class) not in _METHOD_CONFIGS:
         options_class = method_class.options_class
-        _METHOD_CONFIGS[name, method_class] = dataclass(type(f"{method_class.__name__}Config", (MethodConfig,), {
-            "__annotations__": {"method": str, "options": Annotated[options_class, tyro.conf.OmitArgPrefixes]},
-            "method": name,
-            "options": field(default_factory=options_class, metadata={SAVED_IN_PARENT: True}),
-            "__doc__": MethodConfig.__doc__,
-            "__module__": MethodConfig.__module__,
-        }))
+        _METHOD_CONFIGS[name, method_class] = dataclass(
+            type(
+                f"{method_class.__name__}Config",
+                (MethodConfig,),
+                {
+                    "__annotations__": {"method": str, "options": Annotated[options_class, tyro.conf.OmitArgPrefixes]},
+                    "method": name,
+                    "options": field(default_factory=options_class, metadata={SAVED_IN_PARENT: True}),
+                    "__doc__": MethodConfig.__doc__,
+                    "__module__": MethodConfig.__module__,
+                },
+            )
+        )
     return _METHOD_CONFIGS[name, method_class]

@@ -21,7 +21,8 @@ class CrfBaseline(HdrMethod):
         "raw colour r = the Gaussian's colour before the LDR activation (3DGS: SH(view direction)) is log "
         "radiance ln E; hdr = exp(min(r, 30)); the LDR colour at exposure t seconds is CRF(r + ln t) per "
         "channel i: h = relu(crf.hidden.weight[i] * x_i + crf.hidden.bias[i]); ldr_i = sigmoid(h @ "
-        "crf.out.weight[i] + crf.out.bias[i]). Composite both with the same alpha weights.")
+        "crf.out.weight[i] + crf.out.bias[i]). Composite both with the same alpha weights."
+    )
 
     def __init__(self, config: MethodConfig, loss_kind: LossKind):
         super().__init__(config, loss_kind)

@@ -22,9 +22,11 @@ class HdrNerfOptions:
     crf_warmup_steps: int = 500
     """HDR-NeRF: the CRF learning rate ramps up linearly over these first steps (HDR-GS has no warm-up)."""
 
-    flag_rules: ClassVar = {"unit_exposure_weight": NON_NEGATIVE,
-                            "unit_exposure_value": between(0, 1, low_open=True, high_open=True),
-                            "crf_warmup_steps": NON_NEGATIVE}
+    flag_rules: ClassVar = {
+        "unit_exposure_weight": NON_NEGATIVE,
+        "unit_exposure_value": between(0, 1, low_open=True, high_open=True),
+        "crf_warmup_steps": NON_NEGATIVE,
+    }
 
 
 @register_method("hdr-nerf")
@@ -38,7 +40,8 @@ class HdrNerfBaseline(CrfBaseline):
         terms = super().losses(output, targets, step)
         unit = self.crf(torch.zeros(1, 3, device=output.ldr.device))
         terms["unit_exposure"] = self.options.unit_exposure_weight * torch.mean(
-            (unit - self.options.unit_exposure_value) ** 2)
+            (unit - self.options.unit_exposure_value) ** 2
+        )
         return terms
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:

@@ -21,7 +21,8 @@ class MonoHDR(HdrMethod):
         "channel i: h = relu(l2h.latent.weight[i] * c_i + l2h.latent.bias[i]); (X, S, Y) = h @ "
         "l2h.heads.weight[i] + l2h.heads.bias[i]; hdr_i = softplus(c_i + relu(X) * relu(S) + Y). Composite hdr "
         "with the same alpha weights as the LDR colour. ldr_from_hdr = H2L-CC(mu_law(hdr_image / max)) closes the "
-        "loop in training only.")
+        "loop in training only."
+    )
 
     def __init__(self, config: MethodConfig, loss_kind: LossKind):
         super().__init__(config, loss_kind)

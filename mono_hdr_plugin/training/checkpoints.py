@@ -17,7 +17,7 @@ CHECKPOINT_VERSION = 2
 # Why each older version cannot be read, so the refusal names what went wrong.
 RETIRED_VERSIONS = {
     1: "version 1 did not save state outside the parameters (3DGS's active SH degree): its 3DGS "
-       "models would load and render without view-dependent colour",
+    "models would load and render without view-dependent colour",
 }
 
 
@@ -28,8 +28,12 @@ class CheckpointError(RuntimeError):
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
     """Save `payload` (state dicts, step, config JSON) with the format header, atomically and durably:
     a crash or a full disk leaves the previous file at `path` as it was (and raises OSError)."""
-    payload = {"format": CHECKPOINT_FORMAT, "format_version": CHECKPOINT_VERSION,
-               "package_version": __version__, **payload}
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "format_version": CHECKPOINT_VERSION,
+        "package_version": __version__,
+        **payload,
+    }
     with atomic_path(path, durable=True) as temporary, open(temporary, "wb") as handle:
         writer = _RecordingWriter(handle)
         try:
@@ -62,11 +66,13 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     """Load a checkpoint safely (weights_only) and check that this version can read it."""
     path = Path(path)
     if path.is_dir():
-        raise CheckpointError(f"checkpoint {path} is a folder; pass the .pt file a training run wrote "
-                              "(OUT/checkpoints/latest.pt)")
+        raise CheckpointError(
+            f"checkpoint {path} is a folder; pass the .pt file a training run wrote (OUT/checkpoints/latest.pt)"
+        )
     if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist; pass the .pt file a training run wrote "
-                              "under OUT/checkpoints/")
+        raise CheckpointError(
+            f"checkpoint {path} does not exist; pass the .pt file a training run wrote under OUT/checkpoints/"
+        )
     try:
         with open(path, "rb") as handle:
             magic = handle.read(len(ZIP_MAGIC))
@@ -74,19 +80,23 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
         raise CheckpointError(f"checkpoint {path} cannot be opened ({error.strerror}); fix its permissions") from error
     if magic != ZIP_MAGIC:
         reason = "the file is empty" if not magic else "it is not a PyTorch checkpoint file"
-        raise CheckpointError(f"checkpoint {path} cannot be read ({reason}); it is truncated or not a mono-hdr-3d "
-                              "checkpoint")
+        raise CheckpointError(
+            f"checkpoint {path} cannot be read ({reason}); it is truncated or not a mono-hdr-3d checkpoint"
+        )
     try:
         with warnings.catch_warnings():  # torch warns about pickle protocols of files that are not ours
             warnings.simplefilter("ignore")
             payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
         # torch's own text advises loading with weights_only=False: never do that with a file from elsewhere.
-        raise CheckpointError(f"{path} is not a mono-hdr-3d checkpoint: it holds Python objects, not just tensors "
-                              "and numbers, and such files are never loaded (unpickling them can run code)") from None
+        raise CheckpointError(
+            f"{path} is not a mono-hdr-3d checkpoint: it holds Python objects, not just tensors "
+            "and numbers, and such files are never loaded (unpickling them can run code)"
+        ) from None
     except Exception as error:
-        raise CheckpointError(f"checkpoint {path} cannot be read ({_first_line(error)}); it is truncated or not a "
-                              "mono-hdr-3d checkpoint") from error
+        raise CheckpointError(
+            f"checkpoint {path} cannot be read ({_first_line(error)}); it is truncated or not a mono-hdr-3d checkpoint"
+        ) from error
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path} is not a mono-hdr-3d checkpoint")
     version = payload.get("format_version")
@@ -95,7 +105,8 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
         raise CheckpointError(
             f"checkpoint {path} has format version {version} (written by mono-hdr-3d "
             f"{payload.get('package_version')}), this is mono-hdr-3d {__version__} which reads version "
-            f"{CHECKPOINT_VERSION}{reason}: retrain, or install the version that wrote it")
+            f"{CHECKPOINT_VERSION}{reason}: retrain, or install the version that wrote it"
+        )
     return payload
 
 

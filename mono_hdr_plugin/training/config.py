@@ -8,15 +8,16 @@ from typing import Annotated, Any, ClassVar
 
 import tyro
 
+from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.core.exposure import ExposureConfig
 from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.layouts import LAYOUTS
-from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.methods.base import METHODS, MethodConfig, method_config_for
 
 TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer")
 """What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
+
 
 @dataclass
 class TrainConfig:
@@ -64,10 +65,16 @@ class TrainConfig:
     viewer_host: str = "127.0.0.1"
     """Address the --viewer listens on; anything but localhost opens it to the network."""
 
-    flag_rules: ClassVar = {"max_steps": NON_NEGATIVE, "max_seconds": POSITIVE, "seed": SEED,
-                            "eval_every": NON_NEGATIVE, "checkpoint_every": at_least(1),
-                            "max_eval_views": at_least(1), "nan_patience": at_least(1),
-                            "viewer_port": between(0, 65535)}
+    flag_rules: ClassVar = {
+        "max_steps": NON_NEGATIVE,
+        "max_seconds": POSITIVE,
+        "seed": SEED,
+        "eval_every": NON_NEGATIVE,
+        "checkpoint_every": at_least(1),
+        "max_eval_views": at_least(1),
+        "nan_patience": at_least(1),
+        "viewer_port": between(0, 65535),
+    }
 
 
 def parse_view_ratio(ratio: str) -> tuple[int, int]:
@@ -112,14 +119,21 @@ def train_config_for(backbone_config_class: type, method: str | None = None) -> 
     method_config_class = method_config_for(MethodConfig.method if method is None else method)
     key = (backbone_config_class, method_config_class)
     if key not in _TRAIN_CONFIGS:
-        _TRAIN_CONFIGS[key] = dataclass(type(
-            f"Train{backbone_config_class.__name__}", (TrainConfig,), {
-                "__annotations__": {"backbone": backbone_config_class,
-                                    "hdr": Annotated[method_config_class, tyro.conf.OmitArgPrefixes]},
-                "backbone": field(default_factory=backbone_config_class),
-                "hdr": field(default_factory=method_config_class),
-                "__doc__": TrainConfig.__doc__,
-            }))
+        _TRAIN_CONFIGS[key] = dataclass(
+            type(
+                f"Train{backbone_config_class.__name__}",
+                (TrainConfig,),
+                {
+                    "__annotations__": {
+                        "backbone": backbone_config_class,
+                        "hdr": Annotated[method_config_class, tyro.conf.OmitArgPrefixes],
+                    },
+                    "backbone": field(default_factory=backbone_config_class),
+                    "hdr": field(default_factory=method_config_class),
+                    "__doc__": TrainConfig.__doc__,
+                },
+            )
+        )
     return _TRAIN_CONFIGS[key]
 
 

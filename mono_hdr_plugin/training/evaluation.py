@@ -6,10 +6,18 @@ from typing import Any
 
 import torch
 
+from mono_hdr_plugin.core.metrics import (
+    LpipsUnavailable,
+    hdr_metrics,
+    load_lpips,
+    lpips_distance,
+    normalise_hdr,
+    psnr,
+    ssim,
+    tone_mapped_pair,
+)
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
-from mono_hdr_plugin.core.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, normalise_hdr, psnr,
-                                     ssim, tone_mapped_pair)
 from mono_hdr_plugin.training.pipeline import Frame, Pipeline
 
 
@@ -29,8 +37,10 @@ def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int |
     train_exposures = set(scene.train_exposures)
     views = [v for v in scene.test if pipeline.renders_any_exposure or v.exposure in train_exposures]
     if not views:
-        raise ValueError(f"scene {scene.name!r} has no test view at a training exposure "
-                         f"({sorted(train_exposures)}) for method {pipeline.method_name!r}")
+        raise ValueError(
+            f"scene {scene.name!r} has no test view at a training exposure "
+            f"({sorted(train_exposures)}) for method {pipeline.method_name!r}"
+        )
     view_ids = set(sorted({v.view_id for v in views})[:max_eval_views])
     return [v for v in views if v.view_id in view_ids]
 
@@ -39,8 +49,9 @@ HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
 
 
 @torch.no_grad()
-def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None,
-             render_dir: Path | None = None) -> dict[str, Any]:
+def evaluate(
+    pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None, render_dir: Path | None = None
+) -> dict[str, Any]:
     """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
 
     The headline LDR figures average the exposures the model was trained at (t1/t3/t5), each
@@ -59,11 +70,19 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
     rows: list[dict[str, Any]] = []
     with pipeline.evaluating():
         for view in views:
-            output = (pipeline.render_matching(view.camera, view.image) if view.name in fitted
-                      else pipeline.render(view.camera, view.exposure))
+            output = (
+                pipeline.render_matching(view.camera, view.image)
+                if view.name in fitted
+                else pipeline.render(view.camera, view.exposure)
+            )
             ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
-            row = {"view": view.stem, "view_id": view.view_id, "exposure": view.exposure,
-                   "ldr_psnr": psnr(ldr, view.image), "ldr_ssim": ssim(ldr.double(), view.image.double()).item()}
+            row = {
+                "view": view.stem,
+                "view_id": view.view_id,
+                "exposure": view.exposure,
+                "ldr_psnr": psnr(ldr, view.image),
+                "ldr_ssim": ssim(ldr.double(), view.image.double()).item(),
+            }
             if lpips_model is not None:
                 row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
             if id(view) in hdr_views:
@@ -77,10 +96,14 @@ def evaluate(pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = 
     exposures = sorted({row["exposure"] for row in rows})
     train_exposures = set(scene.train_exposures)
     headline = [e for e in exposures if e in train_exposures] or exposures
-    by_exposure = {key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
-                   for key in ("ldr_psnr", "ldr_ssim")}
+    by_exposure = {
+        key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
+        for key in ("ldr_psnr", "ldr_ssim")
+    }
     metrics: dict[str, Any] = {
-        "backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name,
+        "backbone": pipeline.backbone_name,
+        "method": pipeline.method_name,
+        "scene": scene.name,
         "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
         "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
         "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},

@@ -80,7 +80,9 @@ def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
         frame = pipeline.render(view.camera.scaled(factor), reference)
         ldr.append(frame.ldr.reshape(-1))
         hdr.append(frame.hdr.reshape(-1))
-    return ExposureModel(reference_exposure=reference, display_scale=fit_display_scale(torch.cat(ldr), torch.cat(hdr)),
-                         renders_any_exposure=pipeline.renders_any_exposure,
-                         ldr_exposures=tuple(exposures) if len(exposures) == 1 else ())
-
+    return ExposureModel(
+        reference_exposure=reference,
+        display_scale=fit_display_scale(torch.cat(ldr), torch.cat(hdr)),
+        renders_any_exposure=pipeline.renders_any_exposure,
+        ldr_exposures=tuple(exposures) if len(exposures) == 1 else (),
+    )

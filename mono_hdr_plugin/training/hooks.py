@@ -30,13 +30,13 @@ class TrainingInterrupted(KeyboardInterrupt):
 class TrainingHook:
     """Something the training loop calls: at the start, after every good step, at the end."""
 
-    def on_start(self, trainer: "Trainer") -> None:
+    def on_start(self, trainer: Trainer) -> None:
         pass
 
-    def after_step(self, trainer: "Trainer", record: dict[str, Any]) -> None:
+    def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
         pass
 
-    def on_end(self, trainer: "Trainer") -> None:
+    def on_end(self, trainer: Trainer) -> None:
         pass
 
 
@@ -44,17 +44,27 @@ class ProgressBar(TrainingHook):
     """A rich progress bar with the loss and the training-view LDR PSNR."""
 
     def on_start(self, trainer: Trainer) -> None:
-        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
-                                 TimeElapsedColumn(), console=console)
-        self.task = self.progress.add_task(escape(f"{trainer.backbone_name}/{trainer.pipeline.method_name}"),
-                                           total=trainer.run_length, completed=trainer.step, loss=math.nan,
-                                           psnr=math.nan)
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
+            TimeElapsedColumn(),
+            console=console,
+        )
+        self.task = self.progress.add_task(
+            escape(f"{trainer.backbone_name}/{trainer.pipeline.method_name}"),
+            total=trainer.run_length,
+            completed=trainer.step,
+            loss=math.nan,
+            psnr=math.nan,
+        )
         self.progress.start()
 
     def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
-        self.progress.update(self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"],
-                             psnr=record["ldr_psnr"])
+        self.progress.update(
+            self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"], psnr=record["ldr_psnr"]
+        )
 
     def on_end(self, trainer: Trainer) -> None:
         self.progress.stop()
@@ -70,8 +80,10 @@ class EvaluateEvery(TrainingHook):
         if trainer.step % self.steps == 0 and not trainer.finished:
             metrics = trainer.evaluate()
             trainer.history.append(metrics)
-            console.print(f"step {trainer.step}: HDR PSNR {metrics.get('hdr_psnr') or math.nan:.2f} dB, "
-                          f"LDR PSNR {metrics['ldr_psnr']:.2f} dB")
+            console.print(
+                f"step {trainer.step}: HDR PSNR {metrics.get('hdr_psnr') or math.nan:.2f} dB, "
+                f"LDR PSNR {metrics['ldr_psnr']:.2f} dB"
+            )
 
 
 class CheckpointEvery(TrainingHook):
@@ -88,7 +100,7 @@ class CheckpointEvery(TrainingHook):
 class StopWhenInterrupted(TrainingHook):
     """Ends training cleanly after the step Ctrl-C arrived in (Trainer.train then saves)."""
 
-    def __init__(self, interrupt: "InterruptRequest"):
+    def __init__(self, interrupt: InterruptRequest):
         self.interrupt = interrupt
 
     def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:

@@ -19,8 +19,8 @@ from torch import nn
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import ViewExposures
-from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
 from mono_hdr_plugin.core.registry import get_backbone
+from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
 
 OWNERS = ("backbone", "method", "exposures")
 
@@ -50,8 +50,9 @@ class Pipeline(nn.Module):
     """`backbone` renders per-primitive LDR features; `method` lifts them to HDR and scores them;
     `exposures` (optional, mono_hdr_plugin.core.exposure) gives each training view its own exposure."""
 
-    def __init__(self, backbone_name: str, backbone: Backbone, method: HdrMethod,
-                 exposures: ViewExposures | None = None):
+    def __init__(
+        self, backbone_name: str, backbone: Backbone, method: HdrMethod, exposures: ViewExposures | None = None
+    ):
         super().__init__()
         self.backbone_name = backbone_name
         self.backbone = backbone
@@ -59,8 +60,14 @@ class Pipeline(nn.Module):
         self.exposures = exposures
 
     @classmethod
-    def create(cls, backbone_name: str, backbone_config: Any, method_config: MethodConfig,
-               scene: SceneInfo, exposures: ViewExposures | None = None) -> "Pipeline":
+    def create(
+        cls,
+        backbone_name: str,
+        backbone_config: Any,
+        method_config: MethodConfig,
+        scene: SceneInfo,
+        exposures: ViewExposures | None = None,
+    ) -> "Pipeline":
         """A fresh pipeline: the registered backbone `backbone_name` and the method the config names."""
         backbone_class = get_backbone(backbone_name)
         backbone = backbone_class(backbone_config, scene)
@@ -84,8 +91,10 @@ class Pipeline(nn.Module):
                 continue
             for group in getattr(self, owner).parameter_groups():
                 if group["name"] in seen:
-                    raise ValueError(f"optimiser group name {group['name']!r} is used by both the backbone "
-                                     f"{self.backbone_name!r} and the method {self.method_name!r}; rename one")
+                    raise ValueError(
+                        f"optimiser group name {group['name']!r} is used by both the backbone "
+                        f"{self.backbone_name!r} and the method {self.method_name!r}; rename one"
+                    )
                 seen.add(group["name"])
                 groups.append({**group, "owner": owner})
         return groups
@@ -140,8 +149,9 @@ class Pipeline(nn.Module):
         return [camera.with_pixels(pixels) for pixels in camera.pixel_centers().split(self.backbone.render_chunk)]
 
     @torch.no_grad()
-    def render(self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None,
-               with_depth: bool = False) -> Frame:
+    def render(
+        self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None, with_depth: bool = False
+    ) -> Frame:
         """A whole image at `exposure` seconds, in pieces of `backbone.render_chunk` rays.
 
         `cancelled` is asked between pieces; a True answer raises RenderCancelled (the viewer's
@@ -170,8 +180,13 @@ class Pipeline(nn.Module):
             present = [piece for piece in pieces if piece is not None]
             return None if len(present) < len(pieces) else torch.cat(present).reshape(shape)
 
-        return Frame(ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0), hdr=torch.cat(hdr).reshape(*shape, 3),
-                     depth=image(depth), alpha=image(alpha), exposure=exposure)
+        return Frame(
+            ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0),
+            hdr=torch.cat(hdr).reshape(*shape, 3),
+            depth=image(depth),
+            alpha=image(alpha),
+            exposure=exposure,
+        )
 
     @torch.no_grad()
     def render_matching(self, camera: Camera, image: torch.Tensor) -> Frame:

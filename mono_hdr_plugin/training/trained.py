@@ -43,8 +43,9 @@ class TrainedModel:
         return calibrate(self.pipeline, self.scene)
 
 
-def load_trained_model(checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None,
-                       scene_name: str | None = None) -> TrainedModel:
+def load_trained_model(
+    checkpoint: Path, scene: SceneData | None = None, data_path: Path | None = None, scene_name: str | None = None
+) -> TrainedModel:
     """The trained model of a checkpoint file written by `mono-hdr train`, with its own data unless
     other data is given (an in-memory `scene`, a dataset folder or a built-in scene name)."""
     payload = load_checkpoint(checkpoint)
@@ -52,22 +53,31 @@ def load_trained_model(checkpoint: Path, scene: SceneData | None = None, data_pa
     try:
         config = saved_train_config(backbone_class.config_class, json.loads(payload["config"]))
     except (KeyError, TypeError, ValueError) as error:
-        raise CheckpointError(f"{checkpoint}: its run settings cannot be read by this version ({error}); "
-                              "retrain, or install the version that wrote it") from error
+        raise CheckpointError(
+            f"{checkpoint}: its run settings cannot be read by this version ({error}); "
+            "retrain, or install the version that wrote it"
+        ) from error
     if data_path is not None or scene_name is not None:
         config.data = dataclasses.replace(config.data, data=data_path, scene=scene_name)
     if scene is None:
-        from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
+        from mono_hdr_plugin.data.loading import load_scene
 
         scene = load_scene(config.data)
-    pipeline = Pipeline.create(payload["backbone_name"], config.backbone, config.hdr, scene.scene_info(),
-                               ViewExposures.from_state_dict(payload["pipeline"]))
+    pipeline = Pipeline.create(
+        payload["backbone_name"],
+        config.backbone,
+        config.hdr,
+        scene.scene_info(),
+        ViewExposures.from_state_dict(payload["pipeline"]),
+    )
     pipeline.set_run_length(payload["run_length"])
     try:
         pipeline.load_state_dict(payload["pipeline"])
     except (RuntimeError, KeyError) as error:
-        raise CheckpointError(f"{checkpoint}: its model does not fit the {payload['backbone_name']!r} model of this "
-                              f"version ({str(error).strip().splitlines()[0][:200]}); retrain, or install the version "
-                              "that wrote it") from error
+        raise CheckpointError(
+            f"{checkpoint}: its model does not fit the {payload['backbone_name']!r} model of this "
+            f"version ({str(error).strip().splitlines()[0][:200]}); retrain, or install the version "
+            "that wrote it"
+        ) from error
     pipeline.eval()
     return TrainedModel(pipeline, scene, config, payload["step"], payload["train_seconds"])

@@ -12,14 +12,16 @@ claims --out first (one run per folder, no earlier run replaced unasked; docs/ro
 import json
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from rich.console import Console
 
 from mono_hdr_plugin.core.backbone import Backbone
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.configs import config_to_json
 from mono_hdr_plugin.core.exposure import build_view_exposures
 from mono_hdr_plugin.core.metrics import psnr
 from mono_hdr_plugin.data.dataset import SceneData, View
@@ -27,13 +29,25 @@ from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.outputs import OutputError, claim_output
 from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, Targets
-from mono_hdr_plugin.core.configs import config_to_json
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.training.config import (TRAIN_OUTPUTS, TrainConfig, check_train_config, hdr_supervised_views,
-                                             parse_view_ratio, saved_train_config)
+from mono_hdr_plugin.training.config import (
+    TRAIN_OUTPUTS,
+    TrainConfig,
+    check_train_config,
+    hdr_supervised_views,
+    parse_view_ratio,
+    saved_train_config,
+)
 from mono_hdr_plugin.training.evaluation import evaluate
-from mono_hdr_plugin.training.hooks import (CheckpointEvery, EvaluateEvery, ProgressBar, StopWhenInterrupted,
-                                            TrainingHook, TrainingInterrupted, interrupt_requests)
+from mono_hdr_plugin.training.hooks import (
+    CheckpointEvery,
+    EvaluateEvery,
+    ProgressBar,
+    StopWhenInterrupted,
+    TrainingHook,
+    TrainingInterrupted,
+    interrupt_requests,
+)
 from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.resume import DATA_FLAGS, ResumeMismatch, changed_flags, describe_change
 
@@ -60,8 +74,13 @@ class Trainer:
         method_config = config.hdr
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
             method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
-        self.pipeline = Pipeline.create(backbone_name, config.backbone, method_config, scene.scene_info(),
-                                        build_view_exposures(config.exposure, scene))
+        self.pipeline = Pipeline.create(
+            backbone_name,
+            config.backbone,
+            method_config,
+            scene.scene_info(),
+            build_view_exposures(config.exposure, scene),
+        )
         self.run_length = config.max_steps
         self.pipeline.set_run_length(self.run_length)
         self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
@@ -100,7 +119,11 @@ class Trainer:
         """Under --max-seconds, re-estimate the steps that fit from the recent step time and tell
         the backbone when the estimate moved, so its schedules end with the budget."""
         budget = self.config.max_seconds
-        if budget is None or self.step < RUN_LENGTH_WARMUP or self.step % RUN_LENGTH_EVERY not in (0, RUN_LENGTH_WARMUP):
+        if (
+            budget is None
+            or self.step < RUN_LENGTH_WARMUP
+            or self.step % RUN_LENGTH_EVERY not in (0, RUN_LENGTH_WARMUP)
+        ):
             return
         per_step = sum(self.recent_step_seconds) / len(self.recent_step_seconds)
         remaining = max(budget - self.train_seconds, 0.0)
@@ -124,9 +147,10 @@ class Trainer:
         flat = torch.randint(0, height * width, (batch_size,), generator=self.generator)
         rows, cols = flat // width, flat % width
         pixels = torch.stack([cols.float() + 0.5, rows.float() + 0.5], -1)
-        return (view.camera.with_pixels(pixels),
-                Targets(ldr=view.image[rows, cols], exposure=view.exposure,
-                        hdr=None if hdr is None else hdr[rows, cols]))
+        return (
+            view.camera.with_pixels(pixels),
+            Targets(ldr=view.image[rows, cols], exposure=view.exposure, hdr=None if hdr is None else hdr[rows, cols]),
+        )
 
     def _bad_tensors(self, loss: torch.Tensor) -> list[str]:
         bad = [] if torch.isfinite(loss) else ["loss"]
@@ -182,13 +206,15 @@ class Trainer:
                 taken += 1
                 if record["skipped"]:
                     failures += 1
-                    console.print(f"[yellow]step {self.step}: non-finite {', '.join(record['bad_tensors'])}; "
-                                  "step skipped")
+                    console.print(
+                        f"[yellow]step {self.step}: non-finite {', '.join(record['bad_tensors'])}; step skipped"
+                    )
                     if failures >= self.config.nan_patience:
                         raise TrainingDiverged(
                             f"{failures} consecutive steps had a non-finite loss or gradient (last: "
                             f"{', '.join(record['bad_tensors'])}); stopped at step {self.step}. "
-                            f"{self.last_checkpoint_note()}: lower the learning rates or check the data for NaN/Inf")
+                            f"{self.last_checkpoint_note()}: lower the learning rates or check the data for NaN/Inf"
+                        )
                     continue
                 failures = 0
                 good += 1
@@ -198,7 +224,8 @@ class Trainer:
                 raise TrainingDiverged(
                     f"none of the {taken} steps had a finite loss and gradients (last: "
                     f"{', '.join(record['bad_tensors'])}), so nothing was trained, saved or scored: lower the "
-                    "learning rates or check the data for NaN/Inf")
+                    "learning rates or check the data for NaN/Inf"
+                )
         finally:
             for hook in hooks:
                 hook.on_end(self)
@@ -230,16 +257,22 @@ class Trainer:
         except KeyboardInterrupt:  # the trained model is saved: resuming only evaluates
             raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
         except OSError as error:
-            raise OutputError(f"{os_error_line(error)}. Training finished and its checkpoint {self.checkpoint_path()} "
-                              "is saved: once fixed, score it with `mono-hdr eval --checkpoint "
-                              f"{self.checkpoint_path()}`") from error
+            raise OutputError(
+                f"{os_error_line(error)}. Training finished and its checkpoint {self.checkpoint_path()} "
+                "is saved: once fixed, score it with `mono-hdr eval --checkpoint "
+                f"{self.checkpoint_path()}`"
+            ) from error
         return metrics
 
     # --------------------------------------------------------------- evaluation
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
         """Test-view metrics of the current model (eval mode), with the step and training seconds."""
-        metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views,
-                           render_dir=self.config.out / "renders" if save_renders else None)
+        metrics = evaluate(
+            self.pipeline,
+            self.scene,
+            self.config.max_eval_views,
+            render_dir=self.config.out / "renders" if save_renders else None,
+        )
         return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 
     # -------------------------------------------------------------- checkpoints
@@ -249,8 +282,10 @@ class Trainer:
     def last_checkpoint_note(self) -> str:
         """Where the last good state is, for error messages: never a checkpoint that was not written."""
         if self.saved_step is None:
-            return (f"No checkpoint has been written yet (--checkpoint-every {self.config.checkpoint_every}), so "
-                    "nothing of this run is kept")
+            return (
+                f"No checkpoint has been written yet (--checkpoint-every {self.config.checkpoint_every}), so "
+                "nothing of this run is kept"
+            )
         return f"The last good checkpoint is {self.checkpoint_path()} (step {self.saved_step}); --resume continues it"
 
     def save(self) -> None:
@@ -258,31 +293,41 @@ class Trainer:
         a file-system error (a full disk) keeps the previous one and says so."""
         bad = [name for name, parameter in self.pipeline.named_parameters() if not torch.isfinite(parameter).all()]
         if bad:
-            raise TrainingDiverged(f"parameters {', '.join(bad[:3])} became NaN or Inf by step {self.step} and are "
-                                   f"not saved. {self.last_checkpoint_note()}: lower the learning rates or check the "
-                                   "data for NaN/Inf")
+            raise TrainingDiverged(
+                f"parameters {', '.join(bad[:3])} became NaN or Inf by step {self.step} and are "
+                f"not saved. {self.last_checkpoint_note()}: lower the learning rates or check the "
+                "data for NaN/Inf"
+            )
         try:
             self._write_checkpoint()
         except OSError as error:
-            raise CheckpointError(f"cannot save the checkpoint of step {self.step}: {os_error_line(error)}. "
-                                  f"{self.last_checkpoint_note()}") from error
+            raise CheckpointError(
+                f"cannot save the checkpoint of step {self.step}: {os_error_line(error)}. {self.last_checkpoint_note()}"
+            ) from error
         self.saved_step = self.step
 
     def _write_checkpoint(self) -> None:
-        save_checkpoint(self.checkpoint_path(), {
-            "backbone_name": self.backbone_name,
-            "config": config_to_json(self.config),
-            "data": {"scene": self.scene.name, "source": str(self.scene.metadata.get("source", "in memory")),
-                     "train_views": len(self.scene.train), "fingerprint": self.scene.fingerprint()},
-            "pipeline": self.pipeline.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "step": self.step,
-            "train_seconds": self.train_seconds,
-            "run_length": self.run_length,
-            "generator": self.generator.get_state(),
-            "torch_rng": torch.get_rng_state(),
-            "view_order": torch.tensor(self.view_order, dtype=torch.long),
-        })
+        save_checkpoint(
+            self.checkpoint_path(),
+            {
+                "backbone_name": self.backbone_name,
+                "config": config_to_json(self.config),
+                "data": {
+                    "scene": self.scene.name,
+                    "source": str(self.scene.metadata.get("source", "in memory")),
+                    "train_views": len(self.scene.train),
+                    "fingerprint": self.scene.fingerprint(),
+                },
+                "pipeline": self.pipeline.state_dict(),
+                "optimizer": self.optimizer.state_dict(),
+                "step": self.step,
+                "train_seconds": self.train_seconds,
+                "run_length": self.run_length,
+                "generator": self.generator.get_state(),
+                "torch_rng": torch.get_rng_state(),
+                "view_order": torch.tensor(self.view_order, dtype=torch.long),
+            },
+        )
 
     def restore(self, payload: dict[str, Any]) -> None:
         """Load model, converters, optimiser and RNG state from a checkpoint payload, after checking
@@ -295,9 +340,11 @@ class Trainer:
             self.optimizer.load_state_dict(payload["optimizer"])
         except (RuntimeError, ValueError, KeyError) as error:
             settings = f" (changed: {', '.join(changed)})" if changed else ""
-            raise ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: its model does not fit the one these "
-                                 f"flags build{settings}: {str(error).strip().splitlines()[0][:200]}. Pass the "
-                                 "flags it was trained with, or train into another --out") from error
+            raise ResumeMismatch(
+                f"cannot resume from {self.checkpoint_path()}: its model does not fit the one these "
+                f"flags build{settings}: {str(error).strip().splitlines()[0][:200]}. Pass the "
+                "flags it was trained with, or train into another --out"
+            ) from error
         if changed:
             console.print(f"note: resuming with changed settings: {', '.join(changed)}", markup=False)
         self.step = payload["step"]
@@ -314,43 +361,61 @@ class Trainer:
         """Raise ResumeMismatch naming every difference that makes resuming meaningless (backbone,
         method, converter width, data); return the other changed settings, as `--flag new (was old)`."""
         if payload.get("backbone_name") != self.backbone_name:
-            raise self._cannot_resume([f"the checkpoint holds a {payload.get('backbone_name')!r} model, not "
-                                       f"{self.backbone_name!r}"])
+            raise self._cannot_resume(
+                [f"the checkpoint holds a {payload.get('backbone_name')!r} model, not {self.backbone_name!r}"]
+            )
         try:
             saved = saved_train_config(type(self.config.backbone), json.loads(payload["config"]))
         except (KeyError, TypeError, ValueError) as error:
-            raise CheckpointError(f"{self.checkpoint_path()}: its run settings cannot be read ({error}); it was not "
-                                  "written by this version: train into another --out") from error
+            raise CheckpointError(
+                f"{self.checkpoint_path()}: its run settings cannot be read ({error}); it was not "
+                "written by this version: train into another --out"
+            ) from error
         changes = changed_flags(saved, self.config)
         identity = set(type(self.method).resume_identity_flags)
-        reasons = [f"it was trained with {flag} {old}, not {new}" for flag, (old, new) in changes.items()
-                   if flag in identity]
+        reasons = [
+            f"it was trained with {flag} {old}, not {new}" for flag, (old, new) in changes.items() if flag in identity
+        ]
         data = payload.get("data")
         data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
         if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
-            trained_on = (f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)" if data
-                          else "other data")
-            reasons.append(f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
-                           f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
-                           + (f"; changed: {', '.join(data_changes)}" if data_changes else ""))
+            trained_on = (
+                f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)"
+                if data
+                else "other data"
+            )
+            reasons.append(
+                f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
+                f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
+                + (f"; changed: {', '.join(data_changes)}" if data_changes else "")
+            )
         if reasons:
             raise self._cannot_resume(reasons)
-        return [describe_change(flag, change) for flag, change in changes.items()
-                if flag not in identity | DATA_FLAGS]
+        return [describe_change(flag, change) for flag, change in changes.items() if flag not in identity | DATA_FLAGS]
 
     def _cannot_resume(self, reasons: list[str]) -> ResumeMismatch:
-        return ResumeMismatch(f"cannot resume from {self.checkpoint_path()}: {'; '.join(reasons)}. Pass the flags it "
-                              "was trained with to continue it, or train into another --out (or --overwrite this one)")
+        return ResumeMismatch(
+            f"cannot resume from {self.checkpoint_path()}: {'; '.join(reasons)}. Pass the flags it "
+            "was trained with to continue it, or train into another --out (or --overwrite this one)"
+        )
 
 
-def run_training(config: TrainConfig, backbone_name: str,
-                 train: Callable[[Trainer], dict[str, Any]] = Trainer.train) -> dict[str, Any]:
+def run_training(
+    config: TrainConfig, backbone_name: str, train: Callable[[Trainer], dict[str, Any]] = Trainer.train
+) -> dict[str, Any]:
     """`mono-hdr train`: claim --out (refused while another run writes it, or when it holds an earlier
     run and neither --resume nor --overwrite says what to do), load the data, then `train` (the
     viewer's training, or plain) and score."""
     check_train_config(config)
-    with claim_output(config.out, "train", TRAIN_OUTPUTS, inputs=[config.data.data], overwrite=config.overwrite,
-                      keep=config.resume, keep_hint="pass --resume to continue it, ") as claim:
+    with claim_output(
+        config.out,
+        "train",
+        TRAIN_OUTPUTS,
+        inputs=[config.data.data],
+        overwrite=config.overwrite,
+        keep=config.resume,
+        keep_hint="pass --resume to continue it, ",
+    ) as claim:
         trainer = build_trainer(config, backbone_name)
         claim.clear_previous()
         return train(trainer)
@@ -360,7 +425,7 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     """Load the scene (unless given) and set up a Trainer, resuming when asked."""
     check_train_config(config)
     if scene is None:
-        from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
+        from mono_hdr_plugin.data.loading import load_scene
 
         scene = load_scene(config.data)
     trainer = Trainer(config, backbone_name, scene)

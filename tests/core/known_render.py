@@ -15,8 +15,8 @@ from torch import nn
 
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera, look_at
-from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.core.registry import register_backbone
+from mono_hdr_plugin.data.dataset import SceneData, View
 
 SIZE = 16
 
@@ -77,8 +77,17 @@ def expected_render(camera: Camera, method: str, brightness: float = 1.0) -> tup
 
 def camera_at(x: float) -> Camera:
     eye = torch.tensor([x, -3.0, 0.5])
-    return Camera(look_at(eye, torch.tensor([x, 0.0, 0.0])), fx=18.0, fy=18.0, cx=SIZE / 2, cy=SIZE / 2,
-                  width=SIZE, height=SIZE, near=0.1, far=10.0)
+    return Camera(
+        look_at(eye, torch.tensor([x, 0.0, 0.0])),
+        fx=18.0,
+        fy=18.0,
+        cx=SIZE / 2,
+        cy=SIZE / 2,
+        width=SIZE,
+        height=SIZE,
+        near=0.1,
+        far=10.0,
+    )
 
 
 def ground_truth(camera: Camera, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,8 +103,14 @@ def view(camera_x: float, view_id: int, exposure: float, seed: int, with_hdr: bo
     camera = camera_at(camera_x)
     ldr, hdr = ground_truth(camera, seed)
     level = {0.5: 1, 2.0: 2, 8.0: 3}[exposure]
-    return View(camera=camera, image=ldr, exposure=exposure, view_id=view_id, name=f"cam{view_id}_t{level}",
-                hdr=hdr if with_hdr else None)
+    return View(
+        camera=camera,
+        image=ldr,
+        exposure=exposure,
+        view_id=view_id,
+        name=f"cam{view_id}_t{level}",
+        hdr=hdr if with_hdr else None,
+    )
 
 
 def known_scene() -> SceneData:
@@ -107,13 +122,17 @@ def known_scene() -> SceneData:
     """
     train = [view(-1.0, 10, 0.5, 10), view(1.5, 11, 2.0, 11)]
     test = [
-        view(3.0, 3, 2.0, 3), view(3.0, 3, 8.0, 3),
-        view(1.0, 1, 8.0, 1), view(1.0, 1, 0.5, 1), view(1.0, 1, 2.0, 1),
+        view(3.0, 3, 2.0, 3),
+        view(3.0, 3, 8.0, 3),
+        view(1.0, 1, 8.0, 1),
+        view(1.0, 1, 0.5, 1),
+        view(1.0, 1, 2.0, 1),
         view(2.0, 2, 0.5, 2, with_hdr=False),
         view(0.0, 0, 0.5, 0),
     ]
     # LDR photos differ per exposure: reseed each test photo by its position in the list
     for index, item in enumerate(test):
         item.image = ground_truth(item.camera, 100 + index)[0]
-    return SceneData(name="known-answer", train=train, test=test, bounds_min=torch.full((3,), -4.0),
-                     bounds_max=torch.full((3,), 4.0))
+    return SceneData(
+        name="known-answer", train=train, test=test, bounds_min=torch.full((3,), -4.0), bounds_max=torch.full((3,), 4.0)
+    )

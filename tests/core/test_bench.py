@@ -4,15 +4,32 @@ and decide orderings by the documented rule."""
 import json
 
 import pytest
+import register_backbone  # registers "voxel-grid"
 import torch
 
-import register_backbone  # registers "voxel-grid"
 from mono_hdr_plugin.apps.bench import runs
 from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves
-from mono_hdr_plugin.apps.bench.paper import (BenchPaperConfig, Variant, best_recipes, mean_spread, ordering, orderings,
-                                         seed_values, table_variants, tuning_trials, write_paper_report)
-from mono_hdr_plugin.apps.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, execute, parse_override,
-                                        set_override)
+from mono_hdr_plugin.apps.bench.paper import (
+    BenchPaperConfig,
+    Variant,
+    best_recipes,
+    mean_spread,
+    ordering,
+    orderings,
+    seed_values,
+    table_variants,
+    tuning_trials,
+    write_paper_report,
+)
+from mono_hdr_plugin.apps.bench.runs import (
+    ExecutorConfig,
+    RowStore,
+    RunBudget,
+    RunSpec,
+    execute,
+    parse_override,
+    set_override,
+)
 from mono_hdr_plugin.core.registry import get_backbone
 
 
@@ -27,21 +44,31 @@ def steps_of_50ms(monkeypatch):
 
 def finished(spec: RunSpec, hdr: float, ldr: float = 20.0) -> dict:
     """A stored row with only what the aggregation reads."""
-    final = {"hdr_psnr": hdr, "ldr_psnr": ldr, "hdr_ssim": 0.5, "ldr_ssim": 0.5, "hdr_psnr_gt_max": hdr - 5,
-             "train_seconds": 10.0, "steps": 100}
+    final = {
+        "hdr_psnr": hdr,
+        "ldr_psnr": ldr,
+        "hdr_ssim": 0.5,
+        "ldr_ssim": 0.5,
+        "hdr_psnr_gt_max": hdr - 5,
+        "train_seconds": 10.0,
+        "steps": 100,
+    }
     return {"key": spec.key, "status": "ok", "final": final, "curve": [final]}
 
 
 class TestOverrides:
-    @pytest.mark.parametrize("text,expected", [
-        ("backbone.field.min_resolution=24", ("backbone.field.min_resolution", 24)),
-        ("hdr.alpha=0.25", ("hdr.alpha", 0.25)),
-        ("backbone.field.color_activation=softplus", ("backbone.field.color_activation", "softplus")),
-        ('hdr.method="no-h2l"', ("hdr.method", "no-h2l")),
-        ("backbone.strategy.absgrad=true", ("backbone.strategy.absgrad", True)),
-        ("backbone.background=[0, 0.5, 1]", ("backbone.background", [0, 0.5, 1])),
-        ("hdr.method=a=b", ("hdr.method", "a=b")),
-    ])
+    @pytest.mark.parametrize(
+        "text,expected",
+        [
+            ("backbone.field.min_resolution=24", ("backbone.field.min_resolution", 24)),
+            ("hdr.alpha=0.25", ("hdr.alpha", 0.25)),
+            ("backbone.field.color_activation=softplus", ("backbone.field.color_activation", "softplus")),
+            ('hdr.method="no-h2l"', ("hdr.method", "no-h2l")),
+            ("backbone.strategy.absgrad=true", ("backbone.strategy.absgrad", True)),
+            ("backbone.background=[0, 0.5, 1]", ("backbone.background", [0, 0.5, 1])),
+            ("hdr.method=a=b", ("hdr.method", "a=b")),
+        ],
+    )
     def test_parse(self, text, expected):
         assert parse_override(text) == expected
 
@@ -55,8 +82,10 @@ class TestOverrides:
         set_override(config, "field.l2h_input", "activated")
         assert config.field.l2h_input == "activated"
 
-    @pytest.mark.parametrize("path,missing", [("field.no_such", "no_such"), ("method.l2h_input", "method"),
-                                              ("field.levels.deeper", "deeper")])
+    @pytest.mark.parametrize(
+        "path,missing",
+        [("field.no_such", "no_such"), ("method.l2h_input", "method"), ("field.levels.deeper", "deeper")],
+    )
     def test_set_names_the_unknown_part(self, path, missing):
         config = get_backbone("nerf").presets()["cpu"]
         with pytest.raises(ValueError, match=f"has no field {missing!r}"):
@@ -64,19 +93,24 @@ class TestOverrides:
 
 
 class TestOrderingRule:
-    @pytest.mark.parametrize("ours_a,ours_b,verdict", [
-        ((30.0, 1.0), (20.0, 1.0), "reproduced"),   # gap 10 > spreads 2, paper's sign
-        ((21.0, 1.0), (20.0, 0.5), "tie"),          # gap 1 <= spreads 1.5
-        ((20.0, 1.0), (30.0, 1.0), "reversed"),     # gap 10 beyond the spreads, the other way
-        ((20.2, 0.0), (20.0, 0.0), "reproduced"),   # one seed: no spread, the sign decides
-    ])
+    @pytest.mark.parametrize(
+        "ours_a,ours_b,verdict",
+        [
+            ((30.0, 1.0), (20.0, 1.0), "reproduced"),  # gap 10 > spreads 2, paper's sign
+            ((21.0, 1.0), (20.0, 0.5), "tie"),  # gap 1 <= spreads 1.5
+            ((20.0, 1.0), (30.0, 1.0), "reversed"),  # gap 10 beyond the spreads, the other way
+            ((20.2, 0.0), (20.0, 0.0), "reproduced"),  # one seed: no spread, the sign decides
+        ],
+    )
     def test_gap_against_spread(self, ours_a, ours_b, verdict):
         assert ordering(ours_a, ours_b, paper_a=38.0, paper_b=19.0) == verdict
 
     def test_orderings_skip_rows_without_paper_figure(self):
-        rows = [{"variant": "a", "paper_hdr_psnr": 38.0, "hdr_psnr": (30.0, 0.1)},
-                {"variant": "b", "paper_hdr_psnr": 19.0, "hdr_psnr": (35.0, 0.1)},
-                {"variant": "c", "paper_hdr_psnr": None, "hdr_psnr": (10.0, 0.1)}]
+        rows = [
+            {"variant": "a", "paper_hdr_psnr": 38.0, "hdr_psnr": (30.0, 0.1)},
+            {"variant": "b", "paper_hdr_psnr": 19.0, "hdr_psnr": (35.0, 0.1)},
+            {"variant": "c", "paper_hdr_psnr": None, "hdr_psnr": (10.0, 0.1)},
+        ]
         assert orderings(rows) == [("a", "b", "reversed")]
 
 
@@ -87,11 +121,12 @@ class TestAggregation:
         values = {(0, 0): 20.0, (0, 2): 22.0, (1, 0): 24.0, (1, 2): 26.0}  # (seed, exposure) -> HDR PSNR
         for (seed, exposure), hdr in values.items():
             store.rows[RunSpec("gs", scene="demo", exposure_index=exposure, seed=seed).key] = finished(
-                RunSpec("gs", scene="demo", exposure_index=exposure, seed=seed), hdr)
+                RunSpec("gs", scene="demo", exposure_index=exposure, seed=seed), hdr
+            )
         per_seed = seed_values(variant, store, (0, 2), "hdr_psnr")
         assert per_seed == {0: 21.0, 1: 25.0}
         mean, spread = mean_spread(per_seed)
-        assert mean == 23.0 and spread == pytest.approx(2 ** 0.5 * 2.0)  # stdev of 21 and 25
+        assert mean == 23.0 and spread == pytest.approx(2**0.5 * 2.0)  # stdev of 21 and 25
 
     def test_a_seed_with_a_failed_run_is_left_out(self, tmp_path):
         store = RowStore(tmp_path / "paper.json", {})
@@ -146,8 +181,9 @@ class TestPaperTables:
         assert best["overrides"] == {"hdr.converter_lr": 1e-3} and best["tune_hdr_psnr"] == 25.0
 
     def test_report_lists_means_spreads_paper_figures_and_plots(self, tmp_path):
-        config = BenchPaperConfig(out=tmp_path, scenes=("demo",), exposure_indices=(1,), seeds=(0, 1),
-                                  tables=("table1",))
+        config = BenchPaperConfig(
+            out=tmp_path, scenes=("demo",), exposure_indices=(1,), seeds=(0, 1), tables=("table1",)
+        )
         variants = table_variants(config)
         store = RowStore(tmp_path / "paper.json", {"budget": {"seconds": 60.0, "steps": None}})
         for number, variant in enumerate(variants):
@@ -173,8 +209,9 @@ class TestExecution:
             return finished(spec, 21.0)
 
         monkeypatch.setattr(runs, "run_row", fake_run)
-        execute(specs, RunBudget(steps=1), RowStore(tmp_path / "rows.json", {"x": 1}), tmp_path,
-                ExecutorConfig(retries=1))
+        execute(
+            specs, RunBudget(steps=1), RowStore(tmp_path / "rows.json", {"x": 1}), tmp_path, ExecutorConfig(retries=1)
+        )
         assert calls == [1, 2, 2]  # seed 0 was done; seed 2 tried twice
         rows = json.loads((tmp_path / "rows.json").read_text())["rows"]
         assert rows[specs[2].key]["status"] == "failed" and "out of memory" in rows[specs[2].key]["error"]
@@ -187,16 +224,27 @@ class TestExecution:
     def test_ray_missing_says_how_to_install(self, tmp_path, monkeypatch):
         monkeypatch.setitem(__import__("sys").modules, "ray", None)
         with pytest.raises(ValueError, match=r"pip install -e '\.\[distributed\]'"):
-            execute([RunSpec("gs")], RunBudget(steps=1), RowStore(tmp_path / "r.json", {}), tmp_path,
-                    ExecutorConfig(executor="ray"))
+            execute(
+                [RunSpec("gs")],
+                RunBudget(steps=1),
+                RowStore(tmp_path / "r.json", {}),
+                tmp_path,
+                ExecutorConfig(executor="ray"),
+            )
 
 
 class TestBenchCurves:
     def test_tiny_run_writes_json_table_and_plots(self, tmp_path, steps_of_50ms, monkeypatch):
         tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
         monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
-        config = BenchCurvesConfig(out=tmp_path, backbones=("voxel-grid",), methods=("mono", "hdr-gs"),
-                                   budget_seconds=0.5, eval_points=2, max_eval_views=1)
+        config = BenchCurvesConfig(
+            out=tmp_path,
+            backbones=("voxel-grid",),
+            methods=("mono", "hdr-gs"),
+            budget_seconds=0.5,
+            eval_points=2,
+            max_eval_views=1,
+        )
         bench_curves(config)
         results = json.loads((tmp_path / "curves.json").read_text())
         assert results["facts"]["git_commit"] and len(results["rows"]) == 2
@@ -214,31 +262,37 @@ class TestBenchCurves:
         tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
         monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
         before = torch.get_num_threads()
-        row = runs.run_row(RunSpec("voxel-grid"), RunBudget(steps=2, eval_points=1, max_eval_views=1), str(tmp_path),
-                           threads=1)
+        row = runs.run_row(
+            RunSpec("voxel-grid"), RunBudget(steps=2, eval_points=1, max_eval_views=1), str(tmp_path), threads=1
+        )
         assert row["threads"] == 1 and torch.get_num_threads() == before
 
 
 @pytest.mark.slow
 class TestRayExecutor:
     def test_quick_paper_on_ray_matches_sequential(self, tmp_path):
-        from mono_hdr_plugin.apps.bench.paper import bench_paper
-
         import ray  # the slow suite installs the `distributed` extra (make test-slow)
 
-        sequential = bench_paper(BenchPaperConfig(out=tmp_path / "seq", quick=True,
-                                                  executor=ExecutorConfig(cpus_per_run=1)))
+        from mono_hdr_plugin.apps.bench.paper import bench_paper
+
+        sequential = bench_paper(
+            BenchPaperConfig(out=tmp_path / "seq", quick=True, executor=ExecutorConfig(cpus_per_run=1))
+        )
         try:
-            distributed = bench_paper(BenchPaperConfig(out=tmp_path / "ray", quick=True,
-                                                       executor=ExecutorConfig(executor="ray", cpus_per_run=1)))
+            distributed = bench_paper(
+                BenchPaperConfig(
+                    out=tmp_path / "ray", quick=True, executor=ExecutorConfig(executor="ray", cpus_per_run=1)
+                )
+            )
         finally:
             ray.shutdown()
         assert sequential["rows"].keys() == distributed["rows"].keys() and len(sequential["rows"]) == 8
         for key, row in sequential["rows"].items():
             ours, theirs = row["final"], distributed["rows"][key]["final"]
             assert row["status"] == distributed["rows"][key]["status"] == "ok"
-            assert [ours[m] for m in ("steps", "hdr_psnr", "ldr_psnr")] == [theirs[m] for m in ("steps", "hdr_psnr",
-                                                                                               "ldr_psnr")], key
+            assert [ours[m] for m in ("steps", "hdr_psnr", "ldr_psnr")] == [
+                theirs[m] for m in ("steps", "hdr_psnr", "ldr_psnr")
+            ], key
 
 
 @pytest.mark.slow

@@ -32,7 +32,11 @@ def test_counts_are_checked_by_the_flag_rules():
 
 def test_overrides_and_variants_read_like_bench_set():
     assert script_args.overrides(["hdr.converter_lr=0.002", "backbone.field.l2h_input=raw"]) == (
-        ("hdr.converter_lr", 0.002), ("backbone.field.l2h_input", "raw"))
+        ("hdr.converter_lr", 0.002),
+        ("backbone.field.l2h_input", "raw"),
+    )
     assert script_args.variant_overrides("base") == ()
     assert script_args.variant_overrides("occupancy_threshold=0.001,grid_size=64", "backbone.field.") == (
-        ("backbone.field.occupancy_threshold", 0.001), ("backbone.field.grid_size", 64))
+        ("backbone.field.occupancy_threshold", 0.001),
+        ("backbone.field.grid_size", 64),
+    )

@@ -3,8 +3,8 @@
 import json
 
 import pytest
-
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+
 from backbones.nerf import GridFieldConfig, MlpFieldConfig
 from mono_hdr_plugin.apps.cli import main
 
@@ -21,8 +21,9 @@ class TestHelp:
             main(["bogus"])
         assert exit_info.value.code == 2
 
-    @pytest.mark.parametrize("argv", [["train", "--help"], ["train", "voxel-grid", "--help"], ["eval", "--help"],
-                                      ["render", "--help"]])
+    @pytest.mark.parametrize(
+        "argv", [["train", "--help"], ["train", "voxel-grid", "--help"], ["eval", "--help"], ["render", "--help"]]
+    )
     def test_every_help_is_readable(self, argv, capsys):
         with pytest.raises(SystemExit) as exit_info:
             main(argv)
@@ -54,28 +55,79 @@ class TestBackbonesCommand:
 class TestTrainEvalRender:
     def test_train_then_eval_then_render(self, tmp_path):
         out = tmp_path / "run"
-        main(["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet",
-              "--max-eval-views", "2", "--backbone.resolution", "8", "--backbone.samples-per-ray", "8"])
+        main(
+            [
+                "train",
+                "voxel-grid",
+                "--scene",
+                "demo",
+                "--max-steps",
+                "3",
+                "--out",
+                str(out),
+                "--quiet",
+                "--max-eval-views",
+                "2",
+                "--backbone.resolution",
+                "8",
+                "--backbone.samples-per-ray",
+                "8",
+            ]
+        )
         metrics = json.loads((out / "metrics.json").read_text())
         assert metrics["steps"] == 3 and metrics["backbone"] == "voxel-grid" and metrics["method"] == "mono"
         assert list(out.glob("renders/*_hdr.exr")) and list(out.glob("renders/*_ldr.png"))
 
         checkpoint = out / "checkpoints" / "latest.pt"
-        main(["eval", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "eval"), "--no-save-renders",
-              "--scene", "demo"])
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(checkpoint),
+                "--out",
+                str(tmp_path / "eval"),
+                "--no-save-renders",
+                "--scene",
+                "demo",
+            ]
+        )
         again = json.loads((tmp_path / "eval" / "metrics.json").read_text())
         assert again["ldr_psnr"] == pytest.approx(metrics["ldr_psnr"], rel=1e-5)
 
-        main(["render", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "render"), "--exposures", "0.5", "8",
-              "--max-views", "1"])
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(checkpoint),
+                "--out",
+                str(tmp_path / "render"),
+                "--exposures",
+                "0.5",
+                "8",
+                "--max-views",
+                "1",
+            ]
+        )
         names = sorted(p.name for p in (tmp_path / "render").iterdir())
         assert any(n.endswith("_hdr.exr") for n in names)
         assert any(n.endswith("_ldr_0.5s.png") for n in names) and any(n.endswith("_ldr_8s.png") for n in names)
 
     def test_resume_continues_from_checkpoint(self, tmp_path):
         out = tmp_path / "run"
-        common = ["--scene", "demo", "--out", str(out), "--quiet", "--max-eval-views", "1", "--backbone.resolution",
-                  "8", "--backbone.samples-per-ray", "8", "--no-save-renders"]
+        common = [
+            "--scene",
+            "demo",
+            "--out",
+            str(out),
+            "--quiet",
+            "--max-eval-views",
+            "1",
+            "--backbone.resolution",
+            "8",
+            "--backbone.samples-per-ray",
+            "8",
+            "--no-save-renders",
+        ]
         main(["train", "voxel-grid", "--max-steps", "2", *common])
         main(["train", "voxel-grid", "--max-steps", "4", "--resume", *common])
         assert json.loads((out / "metrics.json").read_text())["steps"] == 4

@@ -4,15 +4,22 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.core.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear,
-                                        PlainH2L, PlainL2H, per_channel_relu_mlp)
+from mono_hdr_plugin.core.converters import (
+    H2LColorConverter,
+    L2HColorConverter,
+    PerChannelCRF,
+    PerChannelLinear,
+    PlainH2L,
+    PlainL2H,
+    per_channel_relu_mlp,
+)
 
 
 def reference_l2h(converter: L2HColorConverter, ldr: torch.Tensor) -> torch.Tensor:
     """The official per-channel loop: three separate 1 -> hidden -> (X, S, Y) networks."""
     outputs = []
     for c in range(3):
-        x = ldr[..., c:c + 1]
+        x = ldr[..., c : c + 1]
         latent = F.relu(x @ converter.latent.weight[c] + converter.latent.bias[c])
         heads = latent @ converter.heads.weight[c] + converter.heads.bias[c]
         gain, saturation, noise = F.relu(heads[..., 0:1]), F.relu(heads[..., 1:2]), heads[..., 2:3]
@@ -57,8 +64,13 @@ class TestPerChannelReluMlp:
         with torch.no_grad():
             first.weight[0, 0, 0] = 1.0  # a unit of slope exactly 1 still switches at its kink
             first.bias[0, 0, 0] = -0.25
-        x = torch.cat([torch.rand(3, 500, dtype=torch.float64) * 4 - 2,
-                       torch.full((3, 2), 0.25, dtype=torch.float64) + torch.tensor([-1e-3, 1e-3])], 1)
+        x = torch.cat(
+            [
+                torch.rand(3, 500, dtype=torch.float64) * 4 - 2,
+                torch.full((3, 2), 0.25, dtype=torch.float64) + torch.tensor([-1e-3, 1e-3]),
+            ],
+            1,
+        )
         exact = matrix_form(x, copy.deepcopy(first).double(), copy.deepcopy(second).double())
         torch.testing.assert_close(per_channel_relu_mlp(x, first, second), exact, rtol=1e-12, atol=1e-12)
 
@@ -66,8 +78,9 @@ class TestPerChannelReluMlp:
         first, second = PerChannelLinear(1, 8), PerChannelLinear(8, 2)
         kinks = -first.bias[:, 0, :] / first.weight[:, 0, :]
         x = kinks.detach()
-        torch.testing.assert_close(per_channel_relu_mlp(x, first, second), matrix_form(x, first, second),
-                                   rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(
+            per_channel_relu_mlp(x, first, second), matrix_form(x, first, second), rtol=1e-5, atol=1e-5
+        )
 
     def test_gradcheck(self):
         first, second = PerChannelLinear(1, 6).double(), PerChannelLinear(6, 3).double()
@@ -76,7 +89,8 @@ class TestPerChannelReluMlp:
         assert torch.autograd.gradcheck(lambda x: per_channel_relu_mlp(x, first, second), (x,))
         assert torch.autograd.gradcheck(
             lambda w1, b1, w2, b2: _functional(x.detach(), w1, b1, w2, b2),
-            tuple(p.detach().clone().requires_grad_() for p in params))
+            tuple(p.detach().clone().requires_grad_() for p in params),
+        )
 
 
 def _functional(x, w1, b1, w2, b2):
@@ -156,8 +170,17 @@ class TestAblationConverters:
         assert converter.hidden.weight.shape == (3, 1, 6) and converter.out.weight.shape == (3, 6, 1)
         x = torch.rand(5, 3, dtype=torch.float64) * 4 - 2
         hidden, out = converter.hidden, converter.out
-        expected = torch.stack([activation(F.relu(x[:, c:c + 1] @ hidden.weight[c].double() + hidden.bias[c].double())
-                                           @ out.weight[c].double() + out.bias[c].double())[:, 0] for c in range(3)], -1)
+        expected = torch.stack(
+            [
+                activation(
+                    F.relu(x[:, c : c + 1] @ hidden.weight[c].double() + hidden.bias[c].double())
+                    @ out.weight[c].double()
+                    + out.bias[c].double()
+                )[:, 0]
+                for c in range(3)
+            ],
+            -1,
+        )
         torch.testing.assert_close(converter(x), expected)
 
     def test_plain_l2h_has_no_residual_structure(self):

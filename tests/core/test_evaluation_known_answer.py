@@ -12,21 +12,21 @@ import math
 import numpy as np
 import pytest
 import torch
+from known_render import KnownRenderConfig, camera_at, expected_render, ground_truth, known_scene, zero_method
 from PIL import Image
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from known_render import KnownRenderConfig, camera_at, expected_render, ground_truth, known_scene, zero_method
 from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
+from mono_hdr_plugin.core.metrics import psnr
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.data.layouts import LAYOUTS
-from mono_hdr_plugin.training.evaluation import evaluate
-from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods.base import MethodConfig
-from mono_hdr_plugin.core.metrics import psnr
-from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.trainer import build_trainer
 
 LN_5001 = math.log(5001.0)
@@ -38,8 +38,9 @@ def mu_law(x: np.ndarray) -> np.ndarray:
 
 
 def ssim_3dgs(a: np.ndarray, b: np.ndarray) -> float:
-    return structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                 data_range=1.0, channel_axis=-1)
+    return structural_similarity(
+        a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0, channel_axis=-1
+    )
 
 
 def tone_mapped_own_max(hdr: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,22 +59,26 @@ def expected_row(view, method: str, scored_hdr: bool, brightness: float = 1.0) -
         gt = view.hdr.double().numpy()
         own_pred, own_gt = tone_mapped_own_max(hdr, gt)
         by_gt_pred, by_gt_gt = mu_law(np.clip(hdr / gt.max(), 0, 1)), mu_law(gt / gt.max())
-        row.update(hdr_psnr=peak_signal_noise_ratio(own_gt, own_pred, data_range=1.0),
-                   hdr_ssim=ssim_3dgs(own_pred, own_gt),
-                   hdr_psnr_gt_max=peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0),
-                   hdr_ssim_gt_max=ssim_3dgs(by_gt_pred, by_gt_gt))
+        row.update(
+            hdr_psnr=peak_signal_noise_ratio(own_gt, own_pred, data_range=1.0),
+            hdr_ssim=ssim_3dgs(own_pred, own_gt),
+            hdr_psnr_gt_max=peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0),
+            hdr_ssim_gt_max=ssim_3dgs(by_gt_pred, by_gt_gt),
+        )
     return row
 
 
 def known_pipeline(scene, method: str, brightness: float = 1.0) -> Pipeline:
-    pipeline = Pipeline.create("known-render", KnownRenderConfig(brightness), MethodConfig(method=method),
-                               scene.scene_info())
+    pipeline = Pipeline.create(
+        "known-render", KnownRenderConfig(brightness), MethodConfig(method=method), scene.scene_info()
+    )
     zero_method(pipeline)
     return pipeline
 
 
-def assert_rows(got: list[dict], views: list, method: str, hdr_views: set[tuple[int, float]],
-                brightness: float = 1.0) -> list[dict]:
+def assert_rows(
+    got: list[dict], views: list, method: str, hdr_views: set[tuple[int, float]], brightness: float = 1.0
+) -> list[dict]:
     """`got` lists exactly `views` in order, each with its known figures; returns the expected rows."""
     assert [(r["view_id"], r["exposure"]) for r in got] == [(v.view_id, v.exposure) for v in views]
     expected = []
@@ -126,7 +131,8 @@ class TestEvaluateKnownAnswer:
         rows = assert_rows(metrics["views"], views, "mono", {(1, 0.5), (0, 0.5)})
         assert metrics["test_views"] == 2
         assert metrics["ldr_psnr_per_exposure"] == pytest.approx(
-            {"0.5": (rows[0]["ldr_psnr"] + rows[2]["ldr_psnr"]) / 2, "2": rows[1]["ldr_psnr"]}, rel=2e-5)
+            {"0.5": (rows[0]["ldr_psnr"] + rows[2]["ldr_psnr"]) / 2, "2": rows[1]["ldr_psnr"]}, rel=2e-5
+        )
         assert metrics["hdr_psnr"] == pytest.approx((rows[0]["hdr_psnr"] + rows[2]["hdr_psnr"]) / 2, rel=2e-5)
 
     @pytest.mark.parametrize("method", ["hdr-gs", "hdr-nerf"])
@@ -135,10 +141,12 @@ class TestEvaluateKnownAnswer:
         metrics = evaluate(known_pipeline(scene, method), scene)
         # every test view, in list order; HDR from the first view of each camera that lists one
         rows = assert_rows(metrics["views"], scene.test, method, {(3, 2.0), (1, 8.0), (0, 0.5)})
-        by_exposure = {e: mean(r["ldr_psnr"] for r, v in zip(rows, scene.test) if v.exposure == e)
-                       for e in (0.5, 2.0, 8.0)}
+        by_exposure = {
+            e: mean(r["ldr_psnr"] for r, v in zip(rows, scene.test) if v.exposure == e) for e in (0.5, 2.0, 8.0)
+        }
         assert metrics["ldr_psnr_per_exposure"] == pytest.approx(
-            {"0.5": by_exposure[0.5], "2": by_exposure[2.0], "8": by_exposure[8.0]}, rel=2e-5)
+            {"0.5": by_exposure[0.5], "2": by_exposure[2.0], "8": by_exposure[8.0]}, rel=2e-5
+        )
         assert metrics["ldr_psnr"] == pytest.approx((by_exposure[0.5] + by_exposure[2.0]) / 2, rel=2e-5)
         for key in HDR_KEYS:
             assert metrics[key] == pytest.approx(mean(r[key] for r in rows if key in r), rel=2e-5), key
@@ -172,8 +180,12 @@ class TestEvaluateKnownAnswer:
         pipeline.exposures = ViewExposures(torch.zeros(len(scene.train)), 1, 2.0, srgb_response(), learn=False)
         scene.metadata["unknown_exposures"] = [v.name for v in scene.test if v.exposure == 2.0]
         metrics = evaluate(pipeline, scene)
-        fitted = [(row, v) for row in metrics["views"] for v in scene.test
-                  if (v.view_id, v.exposure) == (row["view_id"], row["exposure"]) and v.exposure == 2.0]
+        fitted = [
+            (row, v)
+            for row in metrics["views"]
+            for v in scene.test
+            if (v.view_id, v.exposure) == (row["view_id"], row["exposure"]) and v.exposure == 2.0
+        ]
         assert metrics["ldr_exposure_fitted"] == len(fitted) == 2
         with pipeline.evaluating():
             for row, view in fitted:  # fitted: at least as close to its photo as at the listed (placeholder) time
@@ -185,7 +197,8 @@ class TestEvaluateKnownAnswer:
         evaluate(known_pipeline(scene, "mono", brightness=1.6), scene, render_dir=tmp_path)
         stems = ["cam3_t2", "cam1_t1", "cam0_t1"]
         assert sorted(path.name for path in tmp_path.iterdir()) == sorted(
-            f"{stem}{suffix}" for stem in stems for suffix in ("_ldr.png", "_hdr.exr", "_hdr_mulaw.png"))
+            f"{stem}{suffix}" for stem in stems for suffix in ("_ldr.png", "_hdr.exr", "_hdr_mulaw.png")
+        )
         test = {v.stem: v for v in scene.test}
         for stem in stems:
             ldr, hdr = expected_render(test[stem].camera, "mono", brightness=1.6)
@@ -209,7 +222,9 @@ class TestEvaluateKnownAnswer:
             expected_ldr.append(2 * np.abs(ldr - view.image.double().numpy()).mean())
             assert row["lpips_ldr"] == pytest.approx(expected_ldr[-1], rel=1e-4)
             if "hdr_psnr" in row:
-                expected_hdr.append(2 * np.abs(np.subtract(*tone_mapped_own_max(hdr, view.hdr.double().numpy()))).mean())
+                expected_hdr.append(
+                    2 * np.abs(np.subtract(*tone_mapped_own_max(hdr, view.hdr.double().numpy()))).mean()
+                )
                 assert row["lpips_hdr"] == pytest.approx(expected_hdr[-1], rel=1e-4)
             else:
                 assert "lpips_hdr" not in row
@@ -230,26 +245,51 @@ def captured_known_scene() -> CapturedScene:
     views = []
     for view_id in range(6):
         camera = camera_at(0.5 * view_id)
-        shots = [Shot(exposure, constant(ground_truth(camera, 10 * view_id + e)[0].numpy()), f"{view_id}_{e}")
-                 for e, exposure in enumerate((0.5, 2.0, 8.0))]
-        views.append(CapturedView(view_id=view_id, camera=camera, split="test", shots=shots,
-                                  hdr=constant(ground_truth(camera, view_id)[1].numpy()), name=str(view_id)))
-    return CapturedScene(name="known-answer", views=views, bounds_min=torch.full((3,), -4.0),
-                         bounds_max=torch.full((3,), 4.0))
+        shots = [
+            Shot(exposure, constant(ground_truth(camera, 10 * view_id + e)[0].numpy()), f"{view_id}_{e}")
+            for e, exposure in enumerate((0.5, 2.0, 8.0))
+        ]
+        views.append(
+            CapturedView(
+                view_id=view_id,
+                camera=camera,
+                split="test",
+                shots=shots,
+                hdr=constant(ground_truth(camera, view_id)[1].numpy()),
+                name=str(view_id),
+            )
+        )
+    return CapturedScene(
+        name="known-answer", views=views, bounds_min=torch.full((3,), -4.0), bounds_max=torch.full((3,), 4.0)
+    )
 
 
 class TestEvalCommandKnownAnswer:
     def test_train_then_eval_report_the_known_figures(self, tmp_path):
         data = tmp_path / "data"
         LAYOUTS.get("hdr-gs").write(captured_known_scene(), data)
-        config = train_config_for(KnownRenderConfig)(backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=True,
-                                                     max_steps=0, save_renders=False, max_eval_views=2,
-                                                     data=DataConfig(data=data, protocol="single"))
+        config = train_config_for(KnownRenderConfig)(
+            backbone=KnownRenderConfig(),
+            out=tmp_path / "run",
+            quiet=True,
+            max_steps=0,
+            save_renders=False,
+            max_eval_views=2,
+            data=DataConfig(data=data, protocol="single"),
+        )
         trainer = build_trainer(config, "known-render")
         zero_method(trainer.pipeline)
         trained = trainer.train()
-        main(["eval", "--checkpoint", str(trainer.checkpoint_path()), "--out", str(tmp_path / "eval"),
-              "--no-save-renders"])
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(trainer.checkpoint_path()),
+                "--out",
+                str(tmp_path / "eval"),
+                "--no-save-renders",
+            ]
+        )
         evaluated = json.loads((tmp_path / "eval" / "metrics.json").read_text())
         # the hdr-gs layout puts odd cameras in the test split; single protocol: all at t3 = 2 s
         views = [v for v in trainer.scene.test if v.view_id in (1, 3)]

@@ -8,8 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from mono_hdr_plugin.core.exposure import (ExposureConfig, ViewExposures, build_view_exposures, choose_reference, decode,
-                                      encode, photometric_log_exposures, srgb_response)
+from mono_hdr_plugin.core.exposure import (
+    ExposureConfig,
+    ViewExposures,
+    build_view_exposures,
+    choose_reference,
+    decode,
+    encode,
+    photometric_log_exposures,
+    srgb_response,
+)
 from mono_hdr_plugin.training.frames import calibrate
 
 SRGB = torch.from_numpy(srgb_response()).float()
@@ -34,8 +42,9 @@ class TestResponseTable:
 
     def test_gradients_float64(self):
         response = SRGB.double()
-        code = torch.tensor([[0.2013, 0.5021, 0.7007], [0.3109, 0.4417, 0.9031]], dtype=torch.float64,
-                            requires_grad=True)  # away from the table knots (k / 255), where slopes change
+        code = torch.tensor(
+            [[0.2013, 0.5021, 0.7007], [0.3109, 0.4417, 0.9031]], dtype=torch.float64, requires_grad=True
+        )  # away from the table knots (k / 255), where slopes change
         linear = torch.tensor([[0.05, 0.2, 0.4]], dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(lambda x: decode(x, response), (code,))
         assert torch.autograd.gradcheck(lambda x: encode(x, response), (linear,))
@@ -79,8 +88,9 @@ class TestLearning:
         module = exposures_module([0.0] * len(true_log))
         photos = [module.brighten(canonical, value).detach() for value in true_log]
         image_logits = torch.zeros_like(canonical, requires_grad=True)
-        optimiser = torch.optim.Adam([{"params": [image_logits], "lr": 0.1},
-                                      {"params": list(module.correction), "lr": 0.05}])
+        optimiser = torch.optim.Adam(
+            [{"params": [image_logits], "lr": 0.1}, {"params": list(module.correction), "lr": 0.05}]
+        )
         decay = torch.optim.lr_scheduler.ExponentialLR(optimiser, gamma=0.995)  # lr / 20 by the end
         for step in range(600):
             view = step % len(photos)
@@ -179,14 +189,20 @@ def auto_exposed(scene, exposures, known: bool):
 
     from mono_hdr_plugin.data.dataset import SceneData
 
-    train = [replace_view(view, image=(view.hdr * exposure).clamp(0, 1) ** (1 / 2.2),
-                          exposure=exposure if known else 1.0)
-             for view, exposure in zip(scene.train, exposures)]
+    train = [
+        replace_view(view, image=(view.hdr * exposure).clamp(0, 1) ** (1 / 2.2), exposure=exposure if known else 1.0)
+        for view, exposure in zip(scene.train, exposures)
+    ]
     gamma = np.stack([np.linspace(0, 1, 256) ** 2.2] * 3, -1)
-    metadata = {"camera_response": gamma.tolist(),
-                "unknown_exposures": [] if known else [view.name for view in train]}
-    return SceneData(name="auto", train=train, test=scene.test, bounds_min=scene.bounds_min,
-                     bounds_max=scene.bounds_max, metadata=metadata)
+    metadata = {"camera_response": gamma.tolist(), "unknown_exposures": [] if known else [view.name for view in train]}
+    return SceneData(
+        name="auto",
+        train=train,
+        test=scene.test,
+        bounds_min=scene.bounds_min,
+        bounds_max=scene.bounds_max,
+        metadata=metadata,
+    )
 
 
 class TestTraining:
@@ -195,14 +211,28 @@ class TestTraining:
 
     exposures = [0.5, 0.9, 0.3, 0.6]
 
-    def run(self, voxel_scene, voxel_backbone_config, tmp_path, known: bool, method: str = "mono", steps: int = 6,
-            learn: bool | None = None):
+    def run(
+        self,
+        voxel_scene,
+        voxel_backbone_config,
+        tmp_path,
+        known: bool,
+        method: str = "mono",
+        steps: int = 6,
+        learn: bool | None = None,
+    ):
         from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
         config = train_config_for(type(voxel_backbone_config), method)(
-            backbone=voxel_backbone_config, out=tmp_path / "run", quiet=True, max_steps=steps, save_renders=False,
-            checkpoint_every=10**9, max_eval_views=2)
+            backbone=voxel_backbone_config,
+            out=tmp_path / "run",
+            quiet=True,
+            max_steps=steps,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_eval_views=2,
+        )
         config.exposure.learn_exposure = learn
         return Trainer(config, "voxel-grid", auto_exposed(voxel_scene, self.exposures, known))
 
@@ -226,7 +256,9 @@ class TestTraining:
         assert moved.sum() >= 2 and not moved[int(exposures.reference)]  # the reference stays fixed
         report = json.loads((tmp_path / "run" / "learned_exposures.json").read_text())
         assert report["learned"] and report["reference_exposure"] is None
-        assert report["views"][trainer.scene.train[1].name]["relative"] == pytest.approx(float(exposures.relative_exposures()[1]))
+        assert report["views"][trainer.scene.train[1].name]["relative"] == pytest.approx(
+            float(exposures.relative_exposures()[1])
+        )
         assert metrics["ldr_exposure_fitted"] == 0  # the test views kept their known exposure
 
     def test_right_exposures_stay_right_while_learning(self, voxel_scene, voxel_backbone_config, tmp_path):
@@ -245,7 +277,9 @@ class TestTraining:
         trainer = self.run(voxel_scene, voxel_backbone_config, tmp_path, known=False)
         trainer.train()
         loaded = load_trained_model(trainer.checkpoint_path(), scene=trainer.scene).pipeline
-        torch.testing.assert_close(loaded.exposures.relative_exposures(), trainer.pipeline.exposures.relative_exposures())
+        torch.testing.assert_close(
+            loaded.exposures.relative_exposures(), trainer.pipeline.exposures.relative_exposures()
+        )
         camera, exposure = trainer.scene.test[0].camera, trainer.scene.test[0].exposure
         with trainer.pipeline.evaluating():
             expected = trainer.pipeline.render(camera, exposure)

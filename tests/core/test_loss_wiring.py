@@ -16,9 +16,9 @@ import copy
 import math
 
 import pytest
+import register_backbone  # examples/, put on sys.path by conftest
 import torch
 
-import register_backbone  # examples/, put on sys.path by conftest
 from backbones.gs import GaussianConfig
 from backbones.nerf import MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.core.metrics import ssim
@@ -30,9 +30,19 @@ LN_5001 = math.log(5001.0)
 BACKBONES = {
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
     "gs": lambda: GaussianConfig(random_init_points=300),
-    "nerf": lambda: NerfConfig(field=MlpFieldConfig(
-        depth=3, width=8, skip_layer=1, xyz_frequencies=3, dir_frequencies=2, density_activation="softplus",
-        coarse_samples=4, fine_samples=4, rays_per_step=32)),
+    "nerf": lambda: NerfConfig(
+        field=MlpFieldConfig(
+            depth=3,
+            width=8,
+            skip_layer=1,
+            xyz_frequencies=3,
+            dir_frequencies=2,
+            density_activation="softplus",
+            coarse_samples=4,
+            fine_samples=4,
+            rays_per_step=32,
+        )
+    ),
 }
 BETA = {"voxel-grid": 0.01, "nerf": 0.01, "gs": 0.05}  # the paper's beta of each backbone's loss
 
@@ -75,8 +85,9 @@ def reference_terms(pipeline, camera, targets, config, kind: str, beta: float) -
     if config.use_ldr_loss:
         terms["ldr"] = photometric(ldr, targets.ldr, kind)
         for index, auxiliary in enumerate(features.auxiliary):
-            terms[f"ldr_aux{index}"] = photometric(reference_images(method, auxiliary, targets.exposure)[0],
-                                                   targets.ldr, kind)
+            terms[f"ldr_aux{index}"] = photometric(
+                reference_images(method, auxiliary, targets.exposure)[0], targets.ldr, kind
+            )
     if config.use_hdr_loss and targets.hdr is not None:
         terms["hdr"] = config.alpha * photometric(normalised(hdr), normalised(targets.hdr), kind)
     if config.use_h2l_loss and from_hdr is not None:
@@ -106,8 +117,12 @@ class StepProbe:
             return forward(camera, exposure, view=view)
 
         def record_gradients(*args, **kwargs):
-            self.gradients = {self.names[id(p)]: p.grad.clone() for group in trainer.optimizer.param_groups
-                              for p in group["params"] if p.grad is not None}
+            self.gradients = {
+                self.names[id(p)]: p.grad.clone()
+                for group in trainer.optimizer.param_groups
+                for p in group["params"]
+                if p.grad is not None
+            }
             return step(*args, **kwargs)
 
         trainer._batch = record_batch
@@ -122,12 +137,25 @@ class StepProbe:
         return record, before, self.gradients
 
 
-def make_trainer(tmp_path, scene, backbone: str, ratio: str = "1:1", method: str = "mono",
-                 options: dict | None = None, **method_settings) -> Trainer:
+def make_trainer(
+    tmp_path,
+    scene,
+    backbone: str,
+    ratio: str = "1:1",
+    method: str = "mono",
+    options: dict | None = None,
+    **method_settings,
+) -> Trainer:
     """A trainer of `method` with MethodConfig fields `method_settings` and the method's own `options`."""
     config = train_config_for(type(BACKBONES[backbone]()), method)(
-        backbone=BACKBONES[backbone](), out=tmp_path / "run", quiet=True, max_steps=10, save_renders=False,
-        checkpoint_every=10**9, hdr_view_ratio=ratio)
+        backbone=BACKBONES[backbone](),
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=10,
+        save_renders=False,
+        checkpoint_every=10**9,
+        hdr_view_ratio=ratio,
+    )
     for key, value in method_settings.items():
         setattr(config.hdr, key, value)
     for key, value in (options or {}).items():
@@ -166,15 +194,17 @@ def check_step(probe: StepProbe, backbone: str) -> tuple[dict, set[str]]:
     return record, reached
 
 
-SWITCHES = [(ldr, hdr, h2l) for ldr in (True, False) for hdr in (True, False) for h2l in (True, False)
-            if ldr or hdr or h2l]
+SWITCHES = [
+    (ldr, hdr, h2l) for ldr in (True, False) for hdr in (True, False) for h2l in (True, False) if ldr or hdr or h2l
+]
 
 
 class TestEveryLossSwitch:
     @pytest.mark.parametrize("ldr,hdr,h2l", SWITCHES)
     def test_mono(self, tmp_path, voxel_scene, ldr, hdr, h2l):
-        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", use_ldr_loss=ldr, use_hdr_loss=hdr,
-                               use_h2l_loss=h2l)
+        trainer = make_trainer(
+            tmp_path, voxel_scene, "voxel-grid", use_ldr_loss=ldr, use_hdr_loss=hdr, use_h2l_loss=h2l
+        )
         record, reached = check_step(StepProbe(trainer), "voxel-grid")
         assert reached == {"backbone"} | ({"l2h"} if hdr or h2l else set()) | ({"h2l"} if h2l else set())
 
@@ -188,8 +218,7 @@ class TestEveryLossSwitch:
     @pytest.mark.parametrize("method", BASELINES)
     @pytest.mark.parametrize("ldr,hdr", [(True, True), (True, False), (False, True)])
     def test_baselines(self, tmp_path, voxel_scene, method, ldr, hdr):
-        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", method=method, use_ldr_loss=ldr,
-                               use_hdr_loss=hdr)
+        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", method=method, use_ldr_loss=ldr, use_hdr_loss=hdr)
         record, reached = check_step(StepProbe(trainer), "voxel-grid")
         # the CRF learns from the LDR loss, and for HDR-NeRF from its unit-exposure loss too
         assert reached == {"backbone"} | ({"crf"} if ldr or method == "hdr-nerf" else set())
@@ -201,8 +230,13 @@ class TestEveryLossSwitch:
         assert trainer.method.beta == 0.7 and trainer.method.loss_kind == "l1_dssim"
 
     def test_hdr_nerf_unit_exposure_weight(self, tmp_path, voxel_scene):
-        trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", method="hdr-nerf",
-                               options={"unit_exposure_weight": 3.0, "unit_exposure_value": 0.73})
+        trainer = make_trainer(
+            tmp_path,
+            voxel_scene,
+            "voxel-grid",
+            method="hdr-nerf",
+            options={"unit_exposure_weight": 3.0, "unit_exposure_value": 0.73},
+        )
         check_step(StepProbe(trainer), "voxel-grid")
 
 
@@ -255,8 +289,9 @@ class TestHdrViewRatioRows:
 
 
 class TestOtherBackbones:
-    @pytest.mark.parametrize("backbone,method", [("gs", "mono"), ("gs", "hdr-gs"), ("nerf", "mono"),
-                                                 ("nerf", "hdr-nerf")])
+    @pytest.mark.parametrize(
+        "backbone,method", [("gs", "mono"), ("gs", "hdr-gs"), ("nerf", "mono"), ("nerf", "hdr-nerf")]
+    )
     def test_one_step(self, tmp_path, voxel_scene, backbone, method):
         trainer = make_trainer(tmp_path, voxel_scene, backbone, method=method)
         record, reached = check_step(StepProbe(trainer), backbone)
@@ -275,8 +310,13 @@ def test_defaults_are_the_papers():
     from mono_hdr_plugin.methods.hdr_nerf import HdrNerfOptions
 
     config = MethodConfig()
-    assert (config.method, config.alpha, config.beta, config.dssim_weight, config.hidden) == ("mono", 0.6, None, 0.2,
-                                                                                             128)
+    assert (config.method, config.alpha, config.beta, config.dssim_weight, config.hidden) == (
+        "mono",
+        0.6,
+        None,
+        0.2,
+        128,
+    )
     assert (config.use_ldr_loss, config.use_hdr_loss, config.use_h2l_loss, config.loss) == (True, True, True, "auto")
     assert config.converter_lr is None and OFFICIAL_CONVERTER_LR == 5e-4  # None: the backbone's rate
     options = MethodConfig(method="hdr-nerf").options

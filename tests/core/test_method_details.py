@@ -8,12 +8,18 @@ import torch
 import torch.nn.functional as F
 
 from mono_hdr_plugin.core.backbone import LdrFeatures
-from mono_hdr_plugin.core.converters import (H2LColorConverter, L2HColorConverter, PerChannelCRF, PerChannelLinear, PlainH2L,
-                                        PlainL2H)
+from mono_hdr_plugin.core.converters import (
+    H2LColorConverter,
+    L2HColorConverter,
+    PerChannelCRF,
+    PerChannelLinear,
+    PlainH2L,
+    PlainL2H,
+)
 from mono_hdr_plugin.core.losses import photometric_loss
+from mono_hdr_plugin.core.metrics import ssim
 from mono_hdr_plugin.methods.base import MethodConfig, Targets, build_method
 from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
-from mono_hdr_plugin.core.metrics import ssim
 
 
 class TestConverterConstruction:
@@ -49,8 +55,11 @@ class TestConverterConstruction:
 
 
 def fake_features(weights: torch.Tensor, raw: torch.Tensor) -> LdrFeatures:
-    return LdrFeatures(colors=torch.sigmoid(raw), raw_colors=raw,
-                       composite=lambda values: (weights @ values).reshape(4, 4, values.shape[-1]))
+    return LdrFeatures(
+        colors=torch.sigmoid(raw),
+        raw_colors=raw,
+        composite=lambda values: (weights @ values).reshape(4, 4, values.shape[-1]),
+    )
 
 
 class TestAuxiliaryRenders:
@@ -84,7 +93,9 @@ class TestBaselineDetails:
 
     @pytest.mark.parametrize("warmup,step,factor", [(0, 0, 1.0), (1, 0, 1.0), (4, 0, 0.25), (4, 2, 0.75), (4, 3, 1.0)])
     def test_crf_warmup(self, warmup, step, factor):
-        method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", options=HdrNerfOptions(crf_warmup_steps=warmup)), "mse")
+        method = HdrNerfBaseline(
+            MethodConfig(method="hdr-nerf", options=HdrNerfOptions(crf_warmup_steps=warmup)), "mse"
+        )
         assert method.learning_rate("method", step, 2.0) == pytest.approx(2.0 * factor)
 
 

@@ -4,10 +4,10 @@ import json
 import math
 
 import pytest
+import register_backbone
+import register_method  # registers "tone-curve"
 import torch
 
-import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-import register_method  # registers "tone-curve"
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
 from mono_hdr_plugin.apps import cli
@@ -20,9 +20,19 @@ from mono_hdr_plugin.training.trainer import Trainer, build_trainer
 
 TINY_BACKBONES = {
     "gs": lambda: GaussianConfig(random_init_points=300),
-    "nerf": lambda: NerfConfig(field=GridFieldConfig(
-        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, min_step=0.125, max_samples_per_ray=16,
-        occupancy_resolution=8, rays_per_step=64, samples_per_step=512)),
+    "nerf": lambda: NerfConfig(
+        field=GridFieldConfig(
+            levels=2,
+            min_resolution=4,
+            max_resolution=8,
+            hidden_width=16,
+            min_step=0.125,
+            max_samples_per_ray=16,
+            occupancy_resolution=8,
+            rays_per_step=64,
+            samples_per_step=512,
+        )
+    ),
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
 }
 
@@ -57,8 +67,13 @@ class TestTrainsOnEveryBackbone:
     def test_two_steps_move_the_curve(self, tmp_path, voxel_scene, backbone):
         backbone_config = TINY_BACKBONES[backbone]()
         config = train_config_for(type(backbone_config), "tone-curve")(
-            backbone=backbone_config, out=tmp_path / "run", quiet=True, save_renders=False, checkpoint_every=10**9,
-            max_steps=2)
+            backbone=backbone_config,
+            out=tmp_path / "run",
+            quiet=True,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_steps=2,
+        )
         trainer = Trainer(config, backbone, voxel_scene)
         before = trainer.method.raw_rises.detach().clone()
         records = [trainer.train_step() for _ in range(2)]
@@ -94,14 +109,31 @@ class TestItsOwnFlag:
         with pytest.raises(FlagError, match="^--knots is a flag of --method tone-curve, not of --method mono"):
             main(["train", "voxel-grid", "--knots", "5", "--scene", "demo", "--out", str(tmp_path / "run")])
         with pytest.raises(FlagError, match="--knots must be an integer >= 2, got 1"):
-            main(["train", "voxel-grid", "--method", "tone-curve", "--knots", "1", "--scene", "demo", "--out",
-                  str(tmp_path / "run")])
+            main(
+                [
+                    "train",
+                    "voxel-grid",
+                    "--method",
+                    "tone-curve",
+                    "--knots",
+                    "1",
+                    "--scene",
+                    "demo",
+                    "--out",
+                    str(tmp_path / "run"),
+                ]
+            )
 
     def test_a_resume_keeps_the_knots_it_declares(self, tmp_path, voxel_scene):
         def trainer(knots: int, resume: bool) -> Trainer:
             config = train_config_for(register_backbone.VoxelGridConfig, "tone-curve")(
-                backbone=TINY_BACKBONES["voxel-grid"](), out=tmp_path / "run", quiet=True, save_renders=False,
-                max_steps=1, resume=resume)
+                backbone=TINY_BACKBONES["voxel-grid"](),
+                out=tmp_path / "run",
+                quiet=True,
+                save_renders=False,
+                max_steps=1,
+                resume=resume,
+            )
             config.hdr.options.knots = knots
             return build_trainer(config, "voxel-grid", voxel_scene)
 
@@ -118,12 +150,39 @@ class TestItsOwnFlag:
 class TestCommandLine:
     def test_train_eval_round_trip(self, tmp_path):
         out = tmp_path / "run"
-        main(["train", "voxel-grid", "--method", "tone-curve", "--scene", "demo", "--max-steps", "3", "--out",
-              str(out), "--quiet", "--max-eval-views", "2", "--backbone.resolution", "8",
-              "--backbone.samples-per-ray", "8", "--no-save-renders"])
+        main(
+            [
+                "train",
+                "voxel-grid",
+                "--method",
+                "tone-curve",
+                "--scene",
+                "demo",
+                "--max-steps",
+                "3",
+                "--out",
+                str(out),
+                "--quiet",
+                "--max-eval-views",
+                "2",
+                "--backbone.resolution",
+                "8",
+                "--backbone.samples-per-ray",
+                "8",
+                "--no-save-renders",
+            ]
+        )
         trained = json.loads((out / "metrics.json").read_text())
         assert trained["method"] == "tone-curve"
-        main(["eval", "--checkpoint", str(out / "checkpoints" / "latest.pt"), "--out", str(tmp_path / "eval"),
-              "--no-save-renders"])
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(out / "checkpoints" / "latest.pt"),
+                "--out",
+                str(tmp_path / "eval"),
+                "--no-save-renders",
+            ]
+        )
         again = json.loads((tmp_path / "eval" / "metrics.json").read_text())
         assert again["hdr_psnr"] == pytest.approx(trained["hdr_psnr"], rel=1e-6)

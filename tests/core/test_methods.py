@@ -6,13 +6,13 @@ import pytest
 import torch
 
 from mono_hdr_plugin.core.backbone import LdrFeatures
-from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method, method_names
-from mono_hdr_plugin.methods.mono import MonoHDR
-from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
-from mono_hdr_plugin.methods.hdr_gs import HdrGsBaseline
-from mono_hdr_plugin.core.registry import RegistryError
 from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.core.registry import RegistryError
 from mono_hdr_plugin.core.validation import FlagError, check_flags
+from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method, method_names
+from mono_hdr_plugin.methods.hdr_gs import HdrGsBaseline
+from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
+from mono_hdr_plugin.methods.mono import MonoHDR
 
 
 def fake_features(pixels: int = 12, primitives: int = 5, seed: int = 0):
@@ -62,8 +62,9 @@ class TestMonoHDR:
         method = MonoHDR(MethodConfig(), "mse")
         gradients = {}
         for name, l2h_inputs in (("colors", None), ("logits", raw)):
-            features = LdrFeatures(colors=torch.sigmoid(raw), raw_colors=raw, composite=lambda values: values,
-                                   l2h_inputs=l2h_inputs)
+            features = LdrFeatures(
+                colors=torch.sigmoid(raw), raw_colors=raw, composite=lambda values: values, l2h_inputs=l2h_inputs
+            )
             raw.grad = None
             method(features, 1.0).hdr.sum().backward()
             gradients[name] = raw.grad.abs().sum().item()
@@ -160,8 +161,9 @@ class TestBaselines:
         method = HdrNerfBaseline(MethodConfig(method="hdr-nerf", options=HdrNerfOptions(crf_warmup_steps=100)), "mse")
         assert method.learning_rate("method", 0, 1.0) == pytest.approx(0.01)
         assert method.learning_rate("method", 500, 1.0) == 1.0
-        assert HdrGsBaseline(MethodConfig(method="hdr-gs"), "l1_dssim").learning_rate(
-            "method", 0, 1.0) == 1.0  # HDR-GS's recipe has no warm-up
+        assert (
+            HdrGsBaseline(MethodConfig(method="hdr-gs"), "l1_dssim").learning_rate("method", 0, 1.0) == 1.0
+        )  # HDR-GS's recipe has no warm-up
         assert "--crf-warmup-steps" not in HdrGsBaseline.own_flags()
 
     def test_huge_log_radiance_stays_finite(self):
@@ -194,13 +196,23 @@ def test_every_method_builds():
 
 
 class TestMethodFlags:
-    @pytest.mark.parametrize(("name", "value", "accepted"), [
-        ("hidden", 1, True), ("hidden", 0, False),
-        ("unit_exposure_value", 0.999, True), ("unit_exposure_value", 1.0, False),
-        ("unit_exposure_value", 0.0, False), ("unit_exposure_value", 1.5, False)])
+    @pytest.mark.parametrize(
+        ("name", "value", "accepted"),
+        [
+            ("hidden", 1, True),
+            ("hidden", 0, False),
+            ("unit_exposure_value", 0.999, True),
+            ("unit_exposure_value", 1.0, False),
+            ("unit_exposure_value", 0.0, False),
+            ("unit_exposure_value", 1.5, False),
+        ],
+    )
     def test_rules_at_their_bounds(self, name, value, accepted):
-        config = (MethodConfig(method="hdr-nerf", options=HdrNerfOptions(**{name: value})) if name.startswith("unit_")
-                  else MethodConfig(**{name: value}))
+        config = (
+            MethodConfig(method="hdr-nerf", options=HdrNerfOptions(**{name: value}))
+            if name.startswith("unit_")
+            else MethodConfig(**{name: value})
+        )
         if accepted:
             check_flags(config)
         else:

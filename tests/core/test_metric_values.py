@@ -14,8 +14,18 @@ import pytest
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from mono_hdr_plugin.core.metrics import (LpipsUnavailable, hdr_metrics, load_lpips, lpips_distance, mu_law,
-                                     normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair)
+from mono_hdr_plugin.core.metrics import (
+    LpipsUnavailable,
+    hdr_metrics,
+    load_lpips,
+    lpips_distance,
+    mu_law,
+    normalise_hdr,
+    psnr,
+    ssim,
+    ssim_map,
+    tone_mapped_pair,
+)
 
 LN_5001 = math.log(5001.0)
 
@@ -27,8 +37,9 @@ def mu_law_numpy(x: np.ndarray) -> np.ndarray:
 
 def skimage_ssim(a: np.ndarray, b: np.ndarray) -> float:
     """The 3DGS SSIM settings in scikit-image."""
-    return structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                 data_range=1.0, channel_axis=-1)
+    return structural_similarity(
+        a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0, channel_axis=-1
+    )
 
 
 def two_region_pair(dtype=torch.float64) -> tuple[torch.Tensor, torch.Tensor]:
@@ -44,8 +55,9 @@ class TestMuLawByHand:
     def test_values(self):
         # 1/5000 maps to ln 2 / ln 5001, 3/5000 to ln 4 / ln 5001, 1/2 to ln 2501 / ln 5001
         x = torch.tensor([0.0, 1 / 5000, 3 / 5000, 0.5, 1.0], dtype=torch.float64)
-        expected = torch.tensor([0.0, math.log(2) / LN_5001, 2 * math.log(2) / LN_5001,
-                                 math.log(2501) / LN_5001, 1.0], dtype=torch.float64)
+        expected = torch.tensor(
+            [0.0, math.log(2) / LN_5001, 2 * math.log(2) / LN_5001, math.log(2501) / LN_5001, 1.0], dtype=torch.float64
+        )
         torch.testing.assert_close(mu_law(x), expected, rtol=1e-12, atol=0)
 
     def test_decimal_values(self):
@@ -92,7 +104,8 @@ class TestLdrMetricsAgainstScikitImage:
         expected = peak_signal_noise_ratio(target, pred, data_range=1.0)
         assert psnr(torch.from_numpy(pred), torch.from_numpy(target)) == pytest.approx(expected, rel=1e-12)
         assert psnr(torch.from_numpy(pred).float(), torch.from_numpy(target).float()) == pytest.approx(
-            expected, rel=1e-5)
+            expected, rel=1e-5
+        )
 
     def test_psnr_by_hand(self):
         # one pixel of 25 off by 0.5: MSE = 0.25 / 25 = 0.01, PSNR = 20 dB; with data range 2, 26.02 dB
@@ -122,8 +135,15 @@ class TestLdrMetricsAgainstScikitImage:
 
     def test_ssim_data_range(self, pair):
         pred, target = pair
-        expected = structural_similarity(4 * pred, 4 * target, gaussian_weights=True, sigma=1.5,
-                                         use_sample_covariance=False, data_range=4.0, channel_axis=-1)
+        expected = structural_similarity(
+            4 * pred,
+            4 * target,
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=False,
+            data_range=4.0,
+            channel_axis=-1,
+        )
         got = ssim(torch.from_numpy(4 * pred), torch.from_numpy(4 * target), data_range=4.0).item()
         assert got == pytest.approx(expected, abs=1e-10)
 
@@ -133,7 +153,8 @@ class TestLdrMetricsAgainstScikitImage:
         target = rng.random((16, 16, 1))
         pred = target[::-1].copy()
         assert ssim(torch.from_numpy(pred), torch.from_numpy(target)).item() == pytest.approx(
-            skimage_ssim(pred, target), abs=1e-10)
+            skimage_ssim(pred, target), abs=1e-10
+        )
 
 
 class TestHdrPairWorkedByHand:
@@ -222,11 +243,11 @@ class TestHdrMetricsOnTexturedImages:
         by_gt_gt = mu_law_numpy(gt / gt.max())
         assert skimage_ssim(own_pred, own_gt) < 0.99 and skimage_ssim(by_gt_pred, by_gt_gt) < 0.99
         metrics = hdr_metrics(torch.from_numpy(pred), torch.from_numpy(gt))
-        assert metrics["hdr_psnr"] == pytest.approx(peak_signal_noise_ratio(own_gt, own_pred, data_range=1.0),
-                                                    rel=1e-9)
+        assert metrics["hdr_psnr"] == pytest.approx(peak_signal_noise_ratio(own_gt, own_pred, data_range=1.0), rel=1e-9)
         assert metrics["hdr_ssim"] == pytest.approx(skimage_ssim(own_pred, own_gt), abs=1e-9)
         assert metrics["hdr_psnr_gt_max"] == pytest.approx(
-            peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0), rel=1e-9)
+            peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0), rel=1e-9
+        )
         assert metrics["hdr_ssim_gt_max"] == pytest.approx(skimage_ssim(by_gt_pred, by_gt_gt), abs=1e-9)
 
 
@@ -263,7 +284,7 @@ class FakeLpipsPackage:
     def __init__(self, fail: bool = False):
         self.fail, self.requests = fail, []
 
-    def LPIPS(self, **options):  # noqa: N802 - the package's name
+    def LPIPS(self, **options):
         self.requests.append(options)
         if self.fail:
             raise OSError("no internet to download alexnet weights")

@@ -35,8 +35,9 @@ class TestSsim:
         rng = np.random.default_rng(1)
         a = rng.random(shape)
         b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
-        expected = structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                         data_range=1.0, channel_axis=-1)
+        expected = structural_similarity(
+            a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0, channel_axis=-1
+        )
         got = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
         assert got == pytest.approx(expected, abs=1e-10)
 

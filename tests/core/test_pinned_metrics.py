@@ -10,9 +10,9 @@ commit, saying why; a refactor never does. The NeRF entries come from the cpu fi
 """
 
 import pytest
+import register_backbone
 import torch
 
-import register_backbone
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
 from mono_hdr_plugin.training.config import train_config_for
@@ -20,9 +20,19 @@ from mono_hdr_plugin.training.trainer import Trainer
 
 CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),
-    "nerf": lambda: NerfConfig(field=GridFieldConfig(
-        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, min_step=0.125, max_samples_per_ray=16,
-        occupancy_resolution=8, rays_per_step=64, samples_per_step=512)),
+    "nerf": lambda: NerfConfig(
+        field=GridFieldConfig(
+            levels=2,
+            min_resolution=4,
+            max_resolution=8,
+            hidden_width=16,
+            min_step=0.125,
+            max_samples_per_ray=16,
+            occupancy_resolution=8,
+            rays_per_step=64,
+            samples_per_step=512,
+        )
+    ),
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
 }
 PINNED = {  # (backbone, method): (HDR PSNR, LDR PSNR) after 200 steps
@@ -43,8 +53,14 @@ def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
     assert torch.get_num_threads() == 2  # tests/conftest.py: the pinned runs used 2 threads
     scene = register_backbone.make_capture(size=16, views=8)
     backbone_config = CONFIGS[backbone]()
-    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
-                                                             quiet=True, max_steps=200, save_renders=False,
-                                                             checkpoint_every=10**9, seed=3)
+    config = train_config_for(type(backbone_config), method)(
+        backbone=backbone_config,
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=200,
+        save_renders=False,
+        checkpoint_every=10**9,
+        seed=3,
+    )
     metrics = Trainer(config, backbone, scene).train()
     assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=1e-6)

@@ -4,8 +4,8 @@ import math
 
 import pytest
 import torch
-
 from known_render import KnownRenderBackbone, KnownRenderConfig, camera_at, expected_render, known_scene, zero_method
+
 from mono_hdr_plugin.core.exposure import ViewExposures, srgb_response
 from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, build_method
 from mono_hdr_plugin.methods.hdr_nerf import HdrNerfOptions
@@ -13,8 +13,12 @@ from mono_hdr_plugin.training.pipeline import Pipeline
 
 
 def pipeline_for(method: str = "mono", options: object = None, **method_settings) -> Pipeline:
-    pipeline = Pipeline.create("known-render", KnownRenderConfig(),
-                               MethodConfig(method=method, options=options, **method_settings), known_scene().scene_info())
+    pipeline = Pipeline.create(
+        "known-render",
+        KnownRenderConfig(),
+        MethodConfig(method=method, options=options, **method_settings),
+        known_scene().scene_info(),
+    )
     zero_method(pipeline)
     return pipeline
 
@@ -36,8 +40,9 @@ class TestParameterGroups:
 
     def test_a_name_used_twice_is_refused(self, monkeypatch):
         pipeline = pipeline_for()
-        monkeypatch.setattr(pipeline.method, "parameter_groups",
-                            lambda: [{"name": "backbone", "params": [], "lr": 1.0}])
+        monkeypatch.setattr(
+            pipeline.method, "parameter_groups", lambda: [{"name": "backbone", "params": [], "lr": 1.0}]
+        )
         with pytest.raises(ValueError, match="'backbone' is used by both the backbone 'known-render' and the method"):
             pipeline.parameter_groups()
 
@@ -66,8 +71,9 @@ class TestRender:
         monkeypatch.setattr(pipeline.backbone, "render_chunk", chunk)
         calls = []
         render = pipeline.backbone.render_ldr_features
-        monkeypatch.setattr(pipeline.backbone, "render_ldr_features",
-                            lambda camera: calls.append(camera.output_shape) or render(camera))
+        monkeypatch.setattr(
+            pipeline.backbone, "render_ldr_features", lambda camera: calls.append(camera.output_shape) or render(camera)
+        )
         camera = camera_at(1.0)
         output = pipeline.render(camera, 0.5)
         ldr, hdr = expected_render(camera, method)
@@ -99,8 +105,9 @@ class TestViewExposures:
     def pipeline(self, method: str) -> Pipeline:
         scene = known_scene()
         torch.manual_seed(0)  # untrained converters: images that depend on the exposure
-        return Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method=method), scene.scene_info(),
-                               one_stop_apart())
+        return Pipeline.create(
+            "known-render", KnownRenderConfig(), MethodConfig(method=method), scene.scene_info(), one_stop_apart()
+        )
 
     def test_methods_that_take_exposure_render_at_the_views_time(self):
         pipeline = self.pipeline("hdr-gs")
@@ -135,15 +142,21 @@ class TestAuxiliaryRenders:
     def pipeline(self, exposures=None) -> Pipeline:
         scene = known_scene()
         torch.manual_seed(0)
-        return Pipeline("known-render", CoarseAndFineBackbone(KnownRenderConfig(), scene.scene_info()),
-                        build_method(MethodConfig(), "mse"), exposures)
+        return Pipeline(
+            "known-render",
+            CoarseAndFineBackbone(KnownRenderConfig(), scene.scene_info()),
+            build_method(MethodConfig(), "mse"),
+            exposures,
+        )
 
     def test_training_forward_renders_the_auxiliary_pass_and_a_render_does_not(self):
         pipeline = self.pipeline()
         camera = camera_at(0.0)
         features, output = pipeline(camera, 0.5)
         torch.testing.assert_close(output.auxiliary_ldr[0], pipeline.method(features.auxiliary[0], 0.5).ldr)
-        assert len(output.auxiliary_ldr) == 1 and pipeline._lift(features, 0.5, None, training=False).auxiliary_ldr == []
+        assert (
+            len(output.auxiliary_ldr) == 1 and pipeline._lift(features, 0.5, None, training=False).auxiliary_ldr == []
+        )
 
     def test_the_auxiliary_pass_is_brightened_like_the_image(self):
         exposures = one_stop_apart()
@@ -165,8 +178,11 @@ class SplatDepthBackbone(KnownRenderBackbone):
 class TestDepth:
     def test_depth_only_when_asked_where_it_costs_a_pass(self):
         scene = known_scene()
-        pipeline = Pipeline("known-render", SplatDepthBackbone(KnownRenderConfig(), scene.scene_info()),
-                            build_method(MethodConfig(), "mse"))
+        pipeline = Pipeline(
+            "known-render",
+            SplatDepthBackbone(KnownRenderConfig(), scene.scene_info()),
+            build_method(MethodConfig(), "mse"),
+        )
         with pipeline.evaluating():
             assert pipeline.render(camera_at(0.0), 0.5).depth is None
             depth = pipeline.render(camera_at(0.0), 0.5, with_depth=True).depth
@@ -199,8 +215,9 @@ class RecordingBackbone(KnownRenderBackbone):
 
 def test_after_step_and_losses_are_delegated():
     scene = known_scene()
-    pipeline = Pipeline("known-render", RecordingBackbone(KnownRenderConfig(), scene.scene_info()),
-                        HdrMethod(MethodConfig(), "mse"))
+    pipeline = Pipeline(
+        "known-render", RecordingBackbone(KnownRenderConfig(), scene.scene_info()), HdrMethod(MethodConfig(), "mse")
+    )
     sentinel = object()
     pipeline.after_step(7, "features", sentinel)
     assert pipeline.backbone.seen == (7, "features", sentinel)

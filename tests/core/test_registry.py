@@ -9,10 +9,10 @@ import pytest
 
 from mono_hdr_plugin.core import registry
 from mono_hdr_plugin.core.backbone import Backbone
+from mono_hdr_plugin.core.registry import BACKBONES, BENCHMARKS, PluginRegistry, RegistryError
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.data.sources import SCENE_SOURCES
 from mono_hdr_plugin.methods.base import METHODS
-from mono_hdr_plugin.core.registry import BACKBONES, BENCHMARKS, PluginRegistry, RegistryError
 
 
 @dataclass
@@ -89,8 +89,11 @@ class TestEntryPoints:
         assert entry.plugin is TinyBackbone and entry.source.startswith("entry point: ")
 
     def test_broken_plugin_named_and_others_survive(self, monkeypatch):
-        monkeypatch.setattr(registry, "entry_points", fake_entry_points(
-            ("broken", "no_such_module_for_mono_hdr:Thing"), ("tiny-ep", f"{__name__}:TinyBackbone")))
+        monkeypatch.setattr(
+            registry,
+            "entry_points",
+            fake_entry_points(("broken", "no_such_module_for_mono_hdr:Thing"), ("tiny-ep", f"{__name__}:TinyBackbone")),
+        )
         fresh = PluginRegistry("backbone", "test.backbones", registry._validate_backbone)
         with pytest.warns(UserWarning, match="backbone plugin 'broken'.*ModuleNotFoundError"):
             available = fresh.available()
@@ -125,8 +128,9 @@ class TestBuiltinPlugins:
         assert {"curves", "paper", "raster"} <= set(BENCHMARKS.available())
         assert BENCHMARKS.get("raster").__module__ == "backbones.gs.benchmark"
 
-    @pytest.mark.parametrize("kind_registry,bad", [(METHODS, dict), (LAYOUTS, dict), (SCENE_SOURCES, object()),
-                                                   (BENCHMARKS, dict)])
+    @pytest.mark.parametrize(
+        "kind_registry,bad", [(METHODS, dict), (LAYOUTS, dict), (SCENE_SOURCES, object()), (BENCHMARKS, dict)]
+    )
     def test_each_kind_refuses_other_objects(self, kind_registry, bad):
         with pytest.raises(RegistryError, match=kind_registry.kind):
             kind_registry.register("bad")(bad)

@@ -9,27 +9,41 @@ import json
 
 import numpy as np
 import pytest
+import register_backbone  # examples/, put on sys.path by conftest
 import torch
 
-import register_backbone  # examples/, put on sys.path by conftest
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.apps.render import render_checkpoint
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.methods.base import method_names
-from mono_hdr_plugin.apps.render import render_checkpoint
-from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 BACKBONE_CONFIGS = {
     "gs": lambda: GaussianConfig(random_init_points=400),
-    "nerf-cpu": lambda: NerfConfig(field=GridFieldConfig(
-        levels=2, min_resolution=4, max_resolution=8, hidden_width=16, min_step=0.125, max_samples_per_ray=16,
-        occupancy_resolution=8, occupancy_update_every=2, rays_per_step=64, samples_per_step=512)),
-    "nerf-paper": lambda: NerfConfig(field=MlpFieldConfig(
-        width=32, coarse_samples=8, fine_samples=8, rays_per_step=64, density_activation="softplus")),
+    "nerf-cpu": lambda: NerfConfig(
+        field=GridFieldConfig(
+            levels=2,
+            min_resolution=4,
+            max_resolution=8,
+            hidden_width=16,
+            min_step=0.125,
+            max_samples_per_ray=16,
+            occupancy_resolution=8,
+            occupancy_update_every=2,
+            rays_per_step=64,
+            samples_per_step=512,
+        )
+    ),
+    "nerf-paper": lambda: NerfConfig(
+        field=MlpFieldConfig(
+            width=32, coarse_samples=8, fine_samples=8, rays_per_step=64, density_activation="softplus"
+        )
+    ),
     "voxel-grid": lambda: register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24),
 }
 METRIC_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr", "ldr_ssim")
@@ -37,9 +51,14 @@ METRIC_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ld
 
 def trained(tmp_path, scene, case: str, method: str, steps: int = 8) -> tuple[Trainer, dict]:
     backbone_config = BACKBONE_CONFIGS[case]()
-    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
-                                                             quiet=True, max_steps=steps, max_eval_views=2,
-                                                             checkpoint_every=10**9)
+    config = train_config_for(type(backbone_config), method)(
+        backbone=backbone_config,
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=steps,
+        max_eval_views=2,
+        checkpoint_every=10**9,
+    )
     trainer = Trainer(config, case.split("-")[0] if case != "voxel-grid" else case, scene)
     return trainer, trainer.train()
 
@@ -90,8 +109,21 @@ class TestCommandLine:
     def test_eval_of_a_trained_3dgs_reproduces_its_metrics(self, tmp_path):
         """The user's report: `train gs` then `eval` of its checkpoint gave 10 dB less HDR PSNR."""
         out = tmp_path / "run"
-        main(["train", "gs", "--scene", "demo", "--max-steps", "30", "--out", str(out), "--quiet",
-              "--max-eval-views", "2"])
+        main(
+            [
+                "train",
+                "gs",
+                "--scene",
+                "demo",
+                "--max-steps",
+                "30",
+                "--out",
+                str(out),
+                "--quiet",
+                "--max-eval-views",
+                "2",
+            ]
+        )
         trained_metrics = json.loads((out / "metrics.json").read_text())
         main(["eval", "--checkpoint", str(out / "checkpoints" / "latest.pt"), "--out", str(tmp_path / "eval")])
         evaluated = json.loads((tmp_path / "eval" / "metrics.json").read_text())

@@ -3,6 +3,8 @@ field with a new default behaviour existed, and before methods had options of th
 
 import json
 
+from register_backbone import VoxelGridConfig
+
 from backbones.gs.model import GaussianConfig
 from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.core.configs import config_from_dict, config_to_json
@@ -12,7 +14,6 @@ from mono_hdr_plugin.training.checkpoints import load_checkpoint, save_checkpoin
 from mono_hdr_plugin.training.config import saved_train_config, train_config_for
 from mono_hdr_plugin.training.trained import load_pipeline
 from mono_hdr_plugin.training.trainer import Trainer, build_trainer
-from register_backbone import VoxelGridConfig
 
 
 def saved(config) -> dict:
@@ -46,9 +47,21 @@ class TestConfigFromDict:
 
 # `hdr` as a run config saved it before methods had options of their own: HDR-NeRF's flags flat
 # among the shared ones, for every method, and no "options".
-OLD_HDR_NERF = {"method": "hdr-nerf", "hidden": 64, "use_ldr_loss": True, "use_hdr_loss": True, "use_h2l_loss": True,
-                "alpha": 0.6, "beta": None, "loss": "auto", "dssim_weight": 0.2, "converter_lr": None,
-                "unit_exposure_weight": 0.3, "unit_exposure_value": 0.73, "crf_warmup_steps": 100}
+OLD_HDR_NERF = {
+    "method": "hdr-nerf",
+    "hidden": 64,
+    "use_ldr_loss": True,
+    "use_hdr_loss": True,
+    "use_h2l_loss": True,
+    "alpha": 0.6,
+    "beta": None,
+    "loss": "auto",
+    "dssim_weight": 0.2,
+    "converter_lr": None,
+    "unit_exposure_weight": 0.3,
+    "unit_exposure_value": 0.73,
+    "crf_warmup_steps": 100,
+}
 OLD_OPTIONS = HdrNerfOptions(unit_exposure_weight=0.3, unit_exposure_value=0.73, crf_warmup_steps=100)
 
 
@@ -73,8 +86,12 @@ class TestMethodOptions:
 
     def test_an_old_checkpoint_loads_and_resumes_with_its_values(self, tmp_path, voxel_scene):
         config = train_config_for(VoxelGridConfig, "hdr-nerf")(
-            backbone=VoxelGridConfig(resolution=8, samples_per_ray=8), out=tmp_path / "run", quiet=True,
-            save_renders=False, max_steps=1)
+            backbone=VoxelGridConfig(resolution=8, samples_per_ray=8),
+            out=tmp_path / "run",
+            quiet=True,
+            save_renders=False,
+            max_steps=1,
+        )
         config.hdr.hidden, config.hdr.options = 64, OLD_OPTIONS
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         trainer.train_step()

@@ -4,21 +4,22 @@ import json
 import math
 
 import pytest
+import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 import torch
 
-import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.methods.base import method_names
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.frames import calibrate
-from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
 from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def make_config(tmp_path, backbone_config, method: str = "mono", **overrides):
-    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
-                                                             quiet=True, save_renders=False, checkpoint_every=10**9)
+    config = train_config_for(type(backbone_config), method)(
+        backbone=backbone_config, out=tmp_path / "run", quiet=True, save_renders=False, checkpoint_every=10**9
+    )
     for key, value in overrides.items():
         if hasattr(config.hdr, key):
             setattr(config.hdr, key, value)
@@ -41,8 +42,9 @@ class TestHdrViewRatio:
 class TestTwoStepsOfEveryMethod:
     @pytest.mark.parametrize("method", method_names())
     def test_two_steps(self, tmp_path, voxel_scene, voxel_backbone_config, method):
-        trainer = Trainer(make_config(tmp_path, voxel_backbone_config, method=method, max_steps=2), "voxel-grid",
-                          voxel_scene)
+        trainer = Trainer(
+            make_config(tmp_path, voxel_backbone_config, method=method, max_steps=2), "voxel-grid", voxel_scene
+        )
         before = [p.detach().clone() for p in trainer.backbone.parameters()]
         records = [trainer.train_step() for _ in range(2)]
         assert all(math.isfinite(r["loss"]) and not r["skipped"] for r in records)
@@ -95,13 +97,13 @@ class TestNanGuard:
     def test_bad_step_skipped_then_training_stops(self, tmp_path, voxel_scene, voxel_backbone_config, monkeypatch):
         from mono_hdr_plugin.training.trainer import TrainingDiverged
 
-        trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=50, nan_patience=3), "voxel-grid",
-                          voxel_scene)
+        trainer = Trainer(
+            make_config(tmp_path, voxel_backbone_config, max_steps=50, nan_patience=3), "voxel-grid", voxel_scene
+        )
         trainer.save()
         good = [p.detach().clone() for p in trainer.backbone.parameters()]
         original = trainer.method.losses
-        monkeypatch.setattr(trainer.method, "losses",
-                            lambda *a: {k: v * float("nan") for k, v in original(*a).items()})
+        monkeypatch.setattr(trainer.method, "losses", lambda *a: {k: v * float("nan") for k, v in original(*a).items()})
         with pytest.raises(TrainingDiverged, match="3 consecutive steps.*latest.pt"):
             trainer.train()
         assert all(torch.equal(a, b) for a, b in zip(good, trainer.backbone.parameters()))
@@ -116,8 +118,17 @@ class TestEndToEnd:
         assert after["hdr_psnr"] > before["hdr_psnr"] + 3.0
         assert after["ldr_psnr"] > before["ldr_psnr"] + 3.0
         written = json.loads((config.out / "metrics.json").read_text())
-        for key in ("hdr_psnr", "hdr_ssim", "ldr_psnr", "ldr_ssim", "ldr_psnr_per_exposure", "train_seconds",
-                    "steps", "backbone", "method"):
+        for key in (
+            "hdr_psnr",
+            "hdr_ssim",
+            "ldr_psnr",
+            "ldr_ssim",
+            "ldr_psnr_per_exposure",
+            "train_seconds",
+            "steps",
+            "backbone",
+            "method",
+        ):
             assert key in written
         assert written["steps"] == 150 and written["backbone"] == "voxel-grid"
 
@@ -173,8 +184,9 @@ class TestTimeBudget:
         monkeypatch.setattr(train_module.time, "perf_counter", clock.perf_counter)
         return clock
 
-    def test_stops_at_max_seconds_and_scales_schedules(self, tmp_path, voxel_scene, voxel_backbone_config,
-                                                       half_second_steps):
+    def test_stops_at_max_seconds_and_scales_schedules(
+        self, tmp_path, voxel_scene, voxel_backbone_config, half_second_steps
+    ):
         config = make_config(tmp_path, voxel_backbone_config, max_steps=1000, max_seconds=10.0)
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         assert trainer.backbone.max_steps == 1000
@@ -186,8 +198,9 @@ class TestTimeBudget:
         config = make_config(tmp_path, voxel_backbone_config, max_steps=8, max_seconds=100.0)
         assert Trainer(config, "voxel-grid", voxel_scene).train()["steps"] == 8
 
-    def test_resume_keeps_the_budget_and_the_schedule(self, tmp_path, voxel_scene, voxel_backbone_config,
-                                                      half_second_steps):
+    def test_resume_keeps_the_budget_and_the_schedule(
+        self, tmp_path, voxel_scene, voxel_backbone_config, half_second_steps
+    ):
         config = make_config(tmp_path, voxel_backbone_config, max_steps=1000, max_seconds=10.0)
         trainer = Trainer(config, "voxel-grid", voxel_scene)
         for _ in range(12):

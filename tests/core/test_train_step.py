@@ -6,32 +6,42 @@ import math
 
 import numpy as np
 import pytest
+import register_backbone  # examples/, put on sys.path by conftest
 import torch
+from known_render import KnownRenderConfig, expected_render, known_scene
 from skimage.metrics import peak_signal_noise_ratio
 
-import register_backbone  # examples/, put on sys.path by conftest
-from known_render import KnownRenderConfig, expected_render, known_scene
 from mono_hdr_plugin.training.config import hdr_supervised_views, train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def voxel_trainer(tmp_path, scene, **options) -> Trainer:
     backbone = register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24)
-    config = train_config_for(type(backbone))(backbone=backbone, out=tmp_path / "run", quiet=True, max_steps=10,
-                                              save_renders=False, checkpoint_every=10**9, **options)
+    config = train_config_for(type(backbone))(
+        backbone=backbone,
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=10,
+        save_renders=False,
+        checkpoint_every=10**9,
+        **options,
+    )
     return Trainer(config, "voxel-grid", scene)
 
 
 class TestHdrViewSelection:
-    @pytest.mark.parametrize("views,ratio,chosen", [
-        (9, "2:1", [0, 1, 3, 5, 7]),       # ceil(9 / 2) = 5 views, spread evenly
-        (9, "3:1", [0, 3, 6]),
-        (10, "5:1", [0, 5]),
-        (3, "5:1", [0]),                   # at least one view keeps its HDR
-        (4, "1:1", [0, 1, 2, 3]),
-        (4, "1:2", [0, 1, 2, 3]),          # more HDR than LDR views: all of them
-        (4, "1:0", []),
-    ])
+    @pytest.mark.parametrize(
+        "views,ratio,chosen",
+        [
+            (9, "2:1", [0, 1, 3, 5, 7]),  # ceil(9 / 2) = 5 views, spread evenly
+            (9, "3:1", [0, 3, 6]),
+            (10, "5:1", [0, 5]),
+            (3, "5:1", [0]),  # at least one view keeps its HDR
+            (4, "1:1", [0, 1, 2, 3]),
+            (4, "1:2", [0, 1, 2, 3]),  # more HDR than LDR views: all of them
+            (4, "1:0", []),
+        ],
+    )
     def test_which_views(self, views, ratio, chosen):
         selected = hdr_supervised_views(views, ratio)
         assert len(selected) == views
@@ -61,8 +71,9 @@ class TestInitialisation:
     def test_the_seed_decides_the_initial_model(self, tmp_path, voxel_scene):
         first, again = (voxel_trainer(tmp_path, voxel_scene, seed=5) for _ in range(2))
         other = voxel_trainer(tmp_path, voxel_scene, seed=6)
-        for (name, a), b, c in zip(first.pipeline.named_parameters(), again.pipeline.parameters(),
-                                   other.pipeline.parameters()):
+        for (name, a), b, c in zip(
+            first.pipeline.named_parameters(), again.pipeline.parameters(), other.pipeline.parameters()
+        ):
             assert torch.equal(a, b), name
         assert any(not torch.equal(a, c) for a, c in zip(first.method.parameters(), other.method.parameters()))
 
@@ -135,8 +146,9 @@ class TestStepRecord:
         trainer.optimizer.param_groups[0]["params"] = list(backbone.parameters())
         features = []
         render = backbone.render_ldr_features
-        monkeypatch.setattr(backbone, "render_ldr_features", lambda camera: features.append(render(camera)) or
-                            features[-1])
+        monkeypatch.setattr(
+            backbone, "render_ldr_features", lambda camera: features.append(render(camera)) or features[-1]
+        )
         trainer.train_step()
         trainer.train_step()
         assert [call[0] for call in backbone.calls] == [0, 1]
@@ -145,8 +157,13 @@ class TestStepRecord:
 
     def test_record_holds_floats_and_the_clipped_ldr_psnr(self, tmp_path):
         scene = known_scene()
-        config = train_config_for(KnownRenderConfig)(backbone=KnownRenderConfig(brightness=1.6), out=tmp_path / "run",
-                                                     quiet=True, max_steps=3, save_renders=False)
+        config = train_config_for(KnownRenderConfig)(
+            backbone=KnownRenderConfig(brightness=1.6),
+            out=tmp_path / "run",
+            quiet=True,
+            max_steps=3,
+            save_renders=False,
+        )
         trainer = Trainer(config, "known-render", scene)
         # the first epoch's order: a permutation from the run's seeded generator, taken from the end
         view = scene.train[torch.randperm(len(scene.train), generator=torch.Generator().manual_seed(0))[-1]]
@@ -165,4 +182,7 @@ class TestEvaluateFromTheTrainer:
         assert (metrics["steps"], metrics["test_views"]) == (0, 1)
         trainer.evaluate(save_renders=True)
         assert sorted(p.name for p in (tmp_path / "run" / "renders").iterdir()) == [
-            "view_001_hdr.exr", "view_001_hdr_mulaw.png", "view_001_ldr.png"]
+            "view_001_hdr.exr",
+            "view_001_hdr_mulaw.png",
+            "view_001_ldr.png",
+        ]

@@ -4,16 +4,16 @@ import json
 import math
 
 import pytest
+import register_backbone
+import register_layout  # noqa: F401 - registers "scene-json" (examples/, on sys.path via conftest)
 import torch
 
-import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
-import register_layout  # noqa: F401 - registers "scene-json" (examples/, on sys.path via conftest)
 from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.apps.studio.dataset import studio_captured_scene
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.layouts import LAYOUTS, detect_layout, writable_layouts, write_layout
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.apps.studio.dataset import studio_captured_scene
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -45,14 +45,20 @@ class TestReadsWhatItWrote:
         assert len(loaded.train) == len(original.train) and len(loaded.test) == len(original.test)
         for a, b in zip(original.train + original.test, loaded.train + loaded.test):
             torch.testing.assert_close(b.camera.c2w, a.camera.c2w)
-            assert (b.camera.fx, b.camera.near, b.camera.far) == pytest.approx((a.camera.fx, a.camera.near, a.camera.far))
+            assert (b.camera.fx, b.camera.near, b.camera.far) == pytest.approx(
+                (a.camera.fx, a.camera.near, a.camera.far)
+            )
             assert a.exposure == b.exposure and torch.equal(a.image, b.image) and torch.equal(a.hdr, b.hdr)
 
     def test_trains_two_steps(self, written, tmp_path):
         scene = load_scene(DataConfig(data=written))
         config = train_config_for(register_backbone.VoxelGridConfig)(
-            backbone=register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8), out=tmp_path / "run",
-            quiet=True, max_steps=2, save_renders=False)
+            backbone=register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8),
+            out=tmp_path / "run",
+            quiet=True,
+            max_steps=2,
+            save_renders=False,
+        )
         records = [Trainer(config, "voxel-grid", scene).train_step() for _ in range(2)]
         assert all(math.isfinite(r["loss"]) for r in records)
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from mono_hdr_plugin.core.cameras import Camera, OPENGL_TO_OPENCV, look_at
+from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
+from mono_hdr_plugin.core.cameras import OPENGL_TO_OPENCV, Camera, look_at
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, constant
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError, MissingFileError
@@ -16,7 +17,6 @@ from mono_hdr_plugin.data.layouts import detect_layout, read_layout, writable_la
 from mono_hdr_plugin.data.layouts.common import natural_key
 from mono_hdr_plugin.data.layouts.hdr_nerf_real import llff_to_opencv, opencv_to_llff
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 
 WIDTH, HEIGHT, VIEWS = 16, 12, 12
 EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
@@ -30,15 +30,27 @@ def make_scene(views=VIEWS) -> CapturedScene:
         angle = 2 * math.pi * index / views
         eye = torch.tensor([3 * math.cos(angle), 3 * math.sin(angle), 1.0 + 0.1 * index])
         focal = WIDTH / (2 * math.tan(math.radians(25)))
-        camera = Camera(c2w=look_at(eye, torch.zeros(3)), fx=focal, fy=focal, cx=WIDTH / 2, cy=HEIGHT / 2,
-                        width=WIDTH, height=HEIGHT, near=0.5, far=6.0)
-        shots = [Shot(t, constant(np.round(rng.random((HEIGHT, WIDTH, 3)) * 255).astype(np.float32) / 255),
-                      f"{index}_{e}") for e, t in enumerate(EXPOSURES)]
+        camera = Camera(
+            c2w=look_at(eye, torch.zeros(3)),
+            fx=focal,
+            fy=focal,
+            cx=WIDTH / 2,
+            cy=HEIGHT / 2,
+            width=WIDTH,
+            height=HEIGHT,
+            near=0.5,
+            far=6.0,
+        )
+        shots = [
+            Shot(t, constant(np.round(rng.random((HEIGHT, WIDTH, 3)) * 255).astype(np.float32) / 255), f"{index}_{e}")
+            for e, t in enumerate(EXPOSURES)
+        ]
         hdr = (rng.random((HEIGHT, WIDTH, 3)) * 1000).astype(np.float32)
         captured.append(CapturedView(index, camera, "train" if index % 2 == 0 else "test", shots, constant(hdr)))
     points = torch.tensor(rng.random((20, 3)), dtype=torch.float32)
-    return CapturedScene("toy", captured, torch.full((3,), -1.0), torch.full((3,), 1.0), points,
-                         torch.full((20, 3), 0.5))
+    return CapturedScene(
+        "toy", captured, torch.full((3,), -1.0), torch.full((3,), 1.0), points, torch.full((20, 3), 0.5)
+    )
 
 
 def by_split(scene):
@@ -99,8 +111,9 @@ class TestCameraConversions:
     def test_llff_pose(self):
         """LLFF columns are (down, right, back): with down = -y, right = +x it looks down -z."""
         llff = np.array([[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 0]], dtype=float)
-        camera = Camera(c2w=torch.from_numpy(llff_to_opencv(llff)).float(), fx=10, fy=10, cx=8, cy=6,
-                        width=16, height=12)
+        camera = Camera(
+            c2w=torch.from_numpy(llff_to_opencv(llff)).float(), fx=10, fy=10, cx=8, cy=6, width=16, height=12
+        )
         pixel, depth = camera.project(torch.tensor([[1.0, 1.0, -10.0]]))
         assert depth.item() == pytest.approx(10) and pixel[0, 0] > 8 and pixel[0, 1] < 6
         assert np.allclose(opencv_to_llff(llff_to_opencv(llff)), llff)
@@ -187,8 +200,9 @@ class TestHdrNerfReal:
             read_layout(written)
 
     @pytest.mark.parametrize("written", ["hdr-nerf-real"], indirect=True)
-    @pytest.mark.parametrize("column,value,message", [(3, np.nan, "NaN or Inf"), (17, 0.0, "not a positive"),
-                                                      (17, -2.0, "not a positive")])
+    @pytest.mark.parametrize(
+        "column,value,message", [(3, np.nan, "NaN or Inf"), (17, 0.0, "not a positive"), (17, -2.0, "not a positive")]
+    )
     def test_bad_rows(self, written, column, value, message):
         rows = np.load(written / "poses_bounds_exps.npy")
         rows[7, column] = value

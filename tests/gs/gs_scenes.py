@@ -8,8 +8,16 @@ from mono_hdr_plugin.core.cameras import Camera, look_at
 def make_camera(width: int = 40, height: int = 32, near: float = 0.05) -> Camera:
     c2w = look_at(torch.tensor([0.3, -4.0, 0.5]), torch.zeros(3))
     focal = 0.9 * width
-    return Camera(c2w, fx=focal, fy=focal * 1.05, cx=0.5 * width + 0.7, cy=0.5 * height - 0.4,
-                  width=width, height=height, near=near)
+    return Camera(
+        c2w,
+        fx=focal,
+        fy=focal * 1.05,
+        cx=0.5 * width + 0.7,
+        cy=0.5 * height - 0.4,
+        width=width,
+        height=height,
+        near=near,
+    )
 
 
 def random_gaussians(n: int, seed: int = 0, channels: int = 3, dtype=torch.float32) -> dict:
@@ -30,20 +38,21 @@ def hard_gaussians(camera: Camera, channels: int = 3) -> dict:
     forward = camera.c2w[:3, 2]
     eye = camera.center
     rows = []  # (mean, quat, scale, opacity)
-    rows.append((eye + 2.0 * forward, [0.0, 0.0, 0.0, 0.0], [0.1, 0.1, 0.1], 0.7))        # zero quaternion
-    rows.append((eye + 3.0 * forward, [1.0, 0.2, 0.0, 0.0], [0.0, 0.0, 0.0], 0.8))        # zero covariance
-    rows.append((eye + 3.0 * forward, [0.3, 0.1, 0.9, 0.0], [0.3, 0.0, 0.0], 0.8))        # needle, rank 1
-    rows.append((eye + 3.0 * forward, [1.0, 0.0, 0.0, 0.0], [1e20, 1e20, 1e20], 0.5))    # overflowing
-    rows.append((eye - 1.0 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.2, 0.2], 0.9))        # behind camera
-    rows.append((eye + 0.0 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.2, 0.2], 0.9))        # at the eye
-    rows.append((eye + 0.051 * forward, [1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5], 0.6))      # straddles near
-    rows.append((eye + 0.3 * forward, [0.5, 0.5, 0.5, 0.5], [30.0, 30.0, 0.01], 0.5))     # huge radius
+    rows.append((eye + 2.0 * forward, [0.0, 0.0, 0.0, 0.0], [0.1, 0.1, 0.1], 0.7))  # zero quaternion
+    rows.append((eye + 3.0 * forward, [1.0, 0.2, 0.0, 0.0], [0.0, 0.0, 0.0], 0.8))  # zero covariance
+    rows.append((eye + 3.0 * forward, [0.3, 0.1, 0.9, 0.0], [0.3, 0.0, 0.0], 0.8))  # needle, rank 1
+    rows.append((eye + 3.0 * forward, [1.0, 0.0, 0.0, 0.0], [1e20, 1e20, 1e20], 0.5))  # overflowing
+    rows.append((eye - 1.0 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.2, 0.2], 0.9))  # behind camera
+    rows.append((eye + 0.0 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.2, 0.2], 0.9))  # at the eye
+    rows.append((eye + 0.051 * forward, [1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5], 0.6))  # straddles near
+    rows.append((eye + 0.3 * forward, [0.5, 0.5, 0.5, 0.5], [30.0, 30.0, 0.01], 0.5))  # huge radius
     rows.append((eye + 2.5 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 1.0 - 1e-7))  # opacity ~ 1
-    rows.append((eye + 2.6 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 1.0))        # opacity 1
-    rows.append((eye + 2.7 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 1e-6))       # opacity ~ 0
-    rows.append((eye + 2.7 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 0.0))        # opacity 0
-    rows.append((eye + 2.0 * forward + 40.0 * camera.c2w[:3, 0], [1.0, 0.0, 0.0, 0.0],
-                 [0.5, 0.5, 0.5], 0.9))                                                   # far off-screen
+    rows.append((eye + 2.6 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 1.0))  # opacity 1
+    rows.append((eye + 2.7 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 1e-6))  # opacity ~ 0
+    rows.append((eye + 2.7 * forward, [1.0, 0.0, 0.0, 0.0], [0.2, 0.1, 0.1], 0.0))  # opacity 0
+    rows.append(
+        (eye + 2.0 * forward + 40.0 * camera.c2w[:3, 0], [1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5], 0.9)
+    )  # far off-screen
     extra = {
         "means": torch.stack([torch.as_tensor(r[0], dtype=torch.float32) for r in rows]),
         "quats": torch.tensor([r[1] for r in rows]),

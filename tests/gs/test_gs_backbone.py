@@ -5,11 +5,18 @@ import math
 
 import pytest
 import torch
-
-from backbones.gs import (DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy, export_ply, load_ply,
-                          render_gaussians)
-from backbones.gs.sh import visible_colors
 from gs_scenes import make_camera
+
+from backbones.gs import (
+    DefaultStrategy,
+    GaussianBackbone,
+    GaussianConfig,
+    McmcStrategy,
+    export_ply,
+    load_ply,
+    render_gaussians,
+)
+from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import look_at
 from mono_hdr_plugin.methods.base import MethodConfig
@@ -19,8 +26,10 @@ from mono_hdr_plugin.methods.mono import MonoHDR
 def make_scene(points: int | None = 300, seed: int = 0) -> SceneInfo:
     gen = torch.Generator().manual_seed(seed)
     base = make_camera()
-    cameras = [dataclasses.replace(base, c2w=look_at(torch.tensor(eye), torch.zeros(3)))
-               for eye in ([0.3, -4.0, 0.5], [3.0, -3.0, 0.4], [-3.0, -3.0, 0.6])]
+    cameras = [
+        dataclasses.replace(base, c2w=look_at(torch.tensor(eye), torch.zeros(3)))
+        for eye in ([0.3, -4.0, 0.5], [3.0, -3.0, 0.4], [-3.0, -3.0, 0.6])
+    ]
     scene = SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=cameras)
     if points:
         scene.points = torch.rand(points, 3, generator=gen) * 1.6 - 0.8
@@ -128,9 +137,18 @@ class TestPresets:
 
     def test_paper_preset_is_the_official_recipe(self):
         paper = GaussianBackbone.presets()["paper"]
-        assert (paper.lr_means, paper.lr_sh_dc, paper.lr_opacities, paper.lr_scales, paper.lr_quats) == \
-            (1.6e-4, 2.5e-3, 0.05, 5e-3, 1e-3)
-        assert (paper.strategy.grad_threshold, paper.strategy.refine_stop, paper.sh_increase_every) == (2e-4, 15_000, 1000)
+        assert (paper.lr_means, paper.lr_sh_dc, paper.lr_opacities, paper.lr_scales, paper.lr_quats) == (
+            1.6e-4,
+            2.5e-3,
+            0.05,
+            5e-3,
+            1e-3,
+        )
+        assert (paper.strategy.grad_threshold, paper.strategy.refine_stop, paper.sh_increase_every) == (
+            2e-4,
+            15_000,
+            1000,
+        )
 
 
 class TestRenderLdrFeatures:
@@ -199,11 +217,18 @@ class TestRenderLdrFeatures:
         output = method(features, 1.0)
         everyone = torch.arange(backbone.num_gaussians)
         assert features.colors.shape[0] < everyone.numel()
-        colors = (visible_colors(3, backbone.sh_dc, backbone.sh_rest, backbone.means, everyone, camera.center)
-                  + 0.5).clamp_min(0)
+        colors = (
+            visible_colors(3, backbone.sh_dc, backbone.sh_rest, backbone.means, everyone, camera.center) + 0.5
+        ).clamp_min(0)
         values = torch.cat([colors, method.l2h(colors)], -1)
-        image, _, _ = render_gaussians(backbone.means, backbone.quats, torch.exp(backbone.log_scales),
-                                       torch.sigmoid(backbone.opacity_logits), values, camera)
+        image, _, _ = render_gaussians(
+            backbone.means,
+            backbone.quats,
+            torch.exp(backbone.log_scales),
+            torch.sigmoid(backbone.opacity_logits),
+            values,
+            camera,
+        )
         assert output.hdr.max() > 0.1
         torch.testing.assert_close(output.ldr, image[..., :3], rtol=0, atol=0)
         torch.testing.assert_close(output.hdr, image[..., 3:], rtol=0, atol=0)

@@ -25,8 +25,10 @@ def test_tiny_run_writes_the_table(tmp_path):
 
 
 def test_importing_it_loads_no_method():
-    code = ("import sys, backbones.gs.benchmark; "
-            "print(sorted(m for m in sys.modules if m.startswith(('mono_hdr_plugin.methods', 'mono_hdr_plugin.training'))))")
+    code = (
+        "import sys, backbones.gs.benchmark; "
+        "print(sorted(m for m in sys.modules if m.startswith(('mono_hdr_plugin.methods', 'mono_hdr_plugin.training'))))"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
 
@@ -39,8 +41,11 @@ def test_the_timed_hdr_render_is_what_mono_hdr_renders():
     l2h.load_state_dict(method.l2h.state_dict())
     colors = torch.rand(50, 3)
     weights = torch.rand(8, 50)
-    features = type("Features", (), {"colors": colors, "l2h_inputs": None,
-                                     "composite": staticmethod(lambda values: weights @ values)})()
+    features = type(
+        "Features",
+        (),
+        {"colors": colors, "l2h_inputs": None, "composite": staticmethod(lambda values: weights @ values)},
+    )()
     with torch.no_grad():
         expected = method(features, 1.0)
         image = features.composite(torch.cat([colors, l2h(colors)], dim=-1))

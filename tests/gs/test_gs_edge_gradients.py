@@ -30,8 +30,16 @@ LIMIT_UP = CY / FY + 0.3 * 0.5 * HEIGHT / FY
 
 
 def edge_camera() -> Camera:
-    return Camera(look_at(torch.tensor([0.0, -4.0, 0.0]), torch.zeros(3)), fx=FX, fy=FY, cx=CX, cy=CY,
-                  width=WIDTH, height=HEIGHT, near=NEAR)
+    return Camera(
+        look_at(torch.tensor([0.0, -4.0, 0.0]), torch.zeros(3)),
+        fx=FX,
+        fy=FY,
+        cx=CX,
+        cy=CY,
+        width=WIDTH,
+        height=HEIGHT,
+        near=NEAR,
+    )
 
 
 def to_world(camera: Camera, t: list[float]) -> torch.Tensor:
@@ -48,8 +56,12 @@ EDGE_CASES = {
     "far-outside-x-clamped-reaching-in": ([6.0, 0.4, 3.0], [2.0, 1.5, 1.8], [0.9, -0.2, 0.1, 0.3], 0.9),
     "straddling-near-plane": ([0.01, -0.005, 0.06], [0.3, 0.2, 0.25], [0.9, 0.1, 0.2, 0.3], 0.7),
     "needle": ([-0.3, 0.2, 2.5], [0.5, 1e-3, 1e-3], [0.6, 0.5, -0.3, 0.4], 0.9),
-    "disk-seen-edge-on": ([0.4, -0.3, 2.0], [0.4, 0.4, 1e-6], [math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0],
-                          0.9),
+    "disk-seen-edge-on": (
+        [0.4, -0.3, 2.0],
+        [0.4, 0.4, 1e-6],
+        [math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0],
+        0.9,
+    ),
     "radius-far-beyond-image": ([0.05, 0.02, 0.3], [30.0, 30.0, 0.01], [0.5, 0.5, 0.5, 0.5], 0.5),
 }
 CULLED_CASES = {
@@ -69,15 +81,22 @@ def gaussians(camera: Camera, cases: list[tuple]) -> dict[str, torch.Tensor]:
 
 def projection_loss(projected, weights: torch.Tensor, conic_scale: torch.Tensor) -> torch.Tensor:
     """A fixed weighted sum of every projected quantity, each term of order one (float64)."""
-    terms = torch.cat([projected.means2d.double() / 100.0, projected.conics.double() / conic_scale,
-                       projected.depths.double()[:, None]], 1)
+    terms = torch.cat(
+        [
+            projected.means2d.double() / 100.0,
+            projected.conics.double() / conic_scale,
+            projected.depths.double()[:, None],
+        ],
+        1,
+    )
     return (terms * weights[: terms.shape[0]]).sum()
 
 
 def projection_gradients(scene: dict, camera: Camera, backend: str, weights, conic_scale):
     leaves = {k: scene[k].clone().requires_grad_() for k in ("means", "quats", "scales")}
-    projected = project_gaussians(leaves["means"], leaves["quats"], leaves["scales"], scene["opacities"], camera,
-                                  backend=backend)
+    projected = project_gaussians(
+        leaves["means"], leaves["quats"], leaves["scales"], scene["opacities"], camera, backend=backend
+    )
     projection_loss(projected, weights, conic_scale).backward()
     return projected, {k: v.grad for k, v in leaves.items()}
 
@@ -128,8 +147,9 @@ class TestEdgeCase:
                     else:
                         moved[name][0, index] += sign * step
                     with torch.no_grad():
-                        shifted = project_gaussians(moved["means"], moved["quats"], moved["scales"],
-                                                    moved["opacities"], camera)
+                        shifted = project_gaussians(
+                            moved["means"], moved["quats"], moved["scales"], moved["opacities"], camera
+                        )
                         assert shifted.radii[0] > 0
                         values.append(projection_loss(shifted, loss_weights(1), conic_scale).item())
                 if name == "scales":
@@ -141,8 +161,13 @@ class TestEdgeCase:
             if name == "scales":
                 analytic = analytic * scene["scales"][0].double()
             scale = float(analytic.abs().max().clamp_min(numeric.abs().max()))
-            torch.testing.assert_close(analytic, numeric, rtol=2e-2, atol=5e-3 * scale,
-                                       msg=lambda message: f"{case}: gradient of {name}\n{message}")
+            torch.testing.assert_close(
+                analytic,
+                numeric,
+                rtol=2e-2,
+                atol=5e-3 * scale,
+                msg=lambda message: f"{case}: gradient of {name}\n{message}",
+            )
 
     def test_kernel_projection_matches_torch_twin(self, case):
         camera = edge_camera()
@@ -156,8 +181,13 @@ class TestEdgeCase:
         torch.testing.assert_close(kernel.depths, twin.depths)
         for name, want in twin_grads.items():
             scale = float(want.abs().max().clamp_min(1e-12))
-            torch.testing.assert_close(kernel_grads[name], want, rtol=1e-3, atol=1e-4 * scale,
-                                       msg=lambda message: f"{case}: gradient of {name}\n{message}")
+            torch.testing.assert_close(
+                kernel_grads[name],
+                want,
+                rtol=1e-3,
+                atol=1e-4 * scale,
+                msg=lambda message: f"{case}: gradient of {name}\n{message}",
+            )
 
     def test_kernel_image_gradients_match_torch_twin(self, case):
         """The whole render (projection and compositing) over an ordinary Gaussian behind it."""
@@ -169,8 +199,15 @@ class TestEdgeCase:
         results = {}
         for backend in ("kernel", "torch"):
             leaves = {k: v.clone().requires_grad_() for k, v in scene.items()}
-            image, alpha, _ = render_gaussians(leaves["means"], leaves["quats"], leaves["scales"],
-                                               leaves["opacities"], leaves["values"], camera, backend=backend)
+            image, alpha, _ = render_gaussians(
+                leaves["means"],
+                leaves["quats"],
+                leaves["scales"],
+                leaves["opacities"],
+                leaves["values"],
+                camera,
+                backend=backend,
+            )
             ((image * weights[..., :3]).sum() + (alpha[..., 0] * weights[..., 3]).sum()).backward()
             results[backend] = image, alpha, {k: v.grad for k, v in leaves.items()}
         (image_k, alpha_k, grads_k), (image_t, alpha_t, grads_t) = results["kernel"], results["torch"]
@@ -182,8 +219,13 @@ class TestEdgeCase:
                 got = grads_k[name][row]
                 assert torch.isfinite(got).all(), f"{case}: {name}[{row}] not finite"
                 scale = float(want[row].abs().max().clamp_min(1e-9))
-                torch.testing.assert_close(got, want[row], rtol=1e-3, atol=2e-4 * scale,
-                                           msg=lambda message: f"{case}: gradient of {name}[{row}]\n{message}")
+                torch.testing.assert_close(
+                    got,
+                    want[row],
+                    rtol=1e-3,
+                    atol=2e-4 * scale,
+                    msg=lambda message: f"{case}: gradient of {name}[{row}]\n{message}",
+                )
 
 
 @pytest.mark.parametrize("case", sorted(CULLED_CASES))
@@ -194,8 +236,15 @@ def test_behind_the_near_plane_is_culled_with_zero_gradient(case, backend):
     scene = gaussians(camera, [CULLED_CASES[case], visible])
     scene["values"] = torch.tensor([[1.0, 0.5, 0.2], [0.3, 0.3, 0.9]])
     leaves = {k: v.clone().requires_grad_() for k, v in scene.items()}
-    image, alpha, projected = render_gaussians(leaves["means"], leaves["quats"], leaves["scales"],
-                                               leaves["opacities"], leaves["values"], camera, backend=backend)
+    image, alpha, projected = render_gaussians(
+        leaves["means"],
+        leaves["quats"],
+        leaves["scales"],
+        leaves["opacities"],
+        leaves["values"],
+        camera,
+        backend=backend,
+    )
     (image.sum() + alpha.sum()).backward()
     assert projected.radii.tolist()[0] == 0 and projected.radii.tolist()[1] > 0
     for name, leaf in leaves.items():
@@ -209,8 +258,9 @@ class TestClampedProjectionValues:
     s^2 J J^T + 0.3 I with J = [[fx, 0, -fx u], [0, fy, -fy v]] / z, where u, v are x / z, y / z
     clamped to the limits, while the 2D mean stays at the unclamped projection."""
 
-    @pytest.mark.parametrize("t", [[2.7, 0.3, 3.0], [-2.8, -0.2, 3.0], [0.2, 2.1, 3.0], [2.4, -1.9, 3.0],
-                                   [0.3, -0.2, 2.0]])
+    @pytest.mark.parametrize(
+        "t", [[2.7, 0.3, 3.0], [-2.8, -0.2, 3.0], [0.2, 2.1, 3.0], [2.4, -1.9, 3.0], [0.3, -0.2, 2.0]]
+    )
     def test_covariance_and_mean(self, t):
         camera = edge_camera()
         s = 0.8
@@ -221,13 +271,24 @@ class TestClampedProjectionValues:
         b = s * s * FX * FY / (z * z) * u * v
         c = s * s * FY * FY / (z * z) * (1 + v * v) + 0.3
         det = a * c - b * b
-        projected = project_gaussians(to_world(camera, t)[None], torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
-                                      torch.full((1, 3), s), torch.tensor([0.99]), camera)
+        projected = project_gaussians(
+            to_world(camera, t)[None],
+            torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+            torch.full((1, 3), s),
+            torch.tensor([0.99]),
+            camera,
+        )
         assert projected.radii[0] > 0
-        torch.testing.assert_close(projected.conics[0].double(), torch.tensor([c / det, -b / det, a / det],
-                                                                              dtype=torch.float64),
-                                   rtol=1e-4, atol=1e-7)
-        torch.testing.assert_close(projected.means2d[0].double(),
-                                   torch.tensor([FX * x / z + CX, FY * y / z + CY], dtype=torch.float64),
-                                   rtol=1e-6, atol=1e-4)
+        torch.testing.assert_close(
+            projected.conics[0].double(),
+            torch.tensor([c / det, -b / det, a / det], dtype=torch.float64),
+            rtol=1e-4,
+            atol=1e-7,
+        )
+        torch.testing.assert_close(
+            projected.means2d[0].double(),
+            torch.tensor([FX * x / z + CX, FY * y / z + CY], dtype=torch.float64),
+            rtol=1e-6,
+            atol=1e-4,
+        )
         torch.testing.assert_close(projected.depths[0].double(), torch.tensor(z, dtype=torch.float64))

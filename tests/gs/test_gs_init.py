@@ -5,9 +5,9 @@ import torch
 
 from backbones.gs import GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.sh import sh_to_rgb
+from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 
 
 def backbone_for(scene, **config) -> GaussianBackbone:
@@ -35,7 +35,9 @@ class TestInitialisationFromPoints:
         a, b = backbone_for(studio), backbone_for(written)
         torch.testing.assert_close(b.means, a.means, rtol=0, atol=1e-5)
         # COLMAP stores 8-bit colours
-        torch.testing.assert_close(sh_to_rgb(b.sh_dc.detach()), sh_to_rgb(a.sh_dc.detach()), rtol=0, atol=0.5 / 255 + 1e-6)
+        torch.testing.assert_close(
+            sh_to_rgb(b.sh_dc.detach()), sh_to_rgb(a.sh_dc.detach()), rtol=0, atol=0.5 / 255 + 1e-6
+        )
         torch.testing.assert_close(b.log_scales, a.log_scales, rtol=0, atol=1e-4)
 
     def test_budget_smaller_than_the_points_keeps_a_subset(self):

@@ -2,10 +2,10 @@
 
 import pytest
 import torch
+from gs_scenes import hard_gaussians, make_camera, pixel_weights, random_gaussians
 
 from backbones.gs import reference
 from backbones.gs.rasterizer import project_gaussians, rasterize, render_gaussians
-from gs_scenes import hard_gaussians, make_camera, pixel_weights, random_gaussians
 
 PARAMS = ("means", "quats", "scales", "opacities", "values")
 
@@ -13,8 +13,9 @@ PARAMS = ("means", "quats", "scales", "opacities", "values")
 def render_with_grads(scene: dict, camera, backend: str):
     """Render, back-propagate a weighted loss on image, alpha and depth; return outputs and grads."""
     leaves = {k: scene[k].clone().requires_grad_() for k in PARAMS}
-    projected = project_gaussians(leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"],
-                                  camera, backend=backend)
+    projected = project_gaussians(
+        leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], camera, backend=backend
+    )
     projected.means2d.retain_grad()
     channels = leaves["values"].shape[1]
     values = torch.cat([leaves["values"][projected.index], projected.depths[:, None]], 1)
@@ -54,21 +55,27 @@ class TestProjectGaussians:
         camera = make_camera(width=32, height=32)
         depth, sigma = 3.0, 0.05
         mean = camera.center + depth * camera.c2w[:3, 2]
-        projected = project_gaussians(mean[None], torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), sigma),
-                                      torch.tensor([0.9]), camera)
+        projected = project_gaussians(
+            mean[None], torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), sigma), torch.tensor([0.9]), camera
+        )
         torch.testing.assert_close(projected.means2d[0], torch.tensor([camera.cx, camera.cy]), rtol=0, atol=1e-4)
         torch.testing.assert_close(projected.depths[0], torch.tensor(depth), rtol=1e-6, atol=1e-5)
         var_x = (sigma * camera.fx / depth) ** 2 + 0.3
         var_y = (sigma * camera.fy / depth) ** 2 + 0.3
-        torch.testing.assert_close(projected.conics[0], torch.tensor([1 / var_x, 0.0, 1 / var_y]),
-                                   rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(projected.conics[0], torch.tensor([1 / var_x, 0.0, 1 / var_y]), rtol=1e-5, atol=1e-6)
 
     def test_culls_hard_cases_without_nan(self, camera):
         scene = hard_gaussians(camera)
         projected = project_gaussians(*(scene[k] for k in PARAMS[:4]), camera)
         radii = projected.radii[40:]  # the hard rows follow 40 ordinary Gaussians
-        culled = {3: "overflowing scale", 4: "behind the camera", 5: "at the eye", 10: "opacity 1e-6",
-                  11: "opacity 0", 12: "off-screen"}
+        culled = {
+            3: "overflowing scale",
+            4: "behind the camera",
+            5: "at the eye",
+            10: "opacity 1e-6",
+            11: "opacity 0",
+            12: "off-screen",
+        }
         for row, why in culled.items():
             assert radii[row] == 0, why
         assert radii[0] > 0, "zero quaternion renders as unrotated"
@@ -143,9 +150,13 @@ class TestRasterize:
         n = 30
         forward = camera.c2w[:3, 2]
         means = camera.center + (2.0 + 0.01 * torch.arange(n, dtype=torch.float32))[:, None] * forward
-        scene = {"means": means, "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                 "scales": torch.full((n, 3), 5.0), "opacities": torch.full((n,), 0.95),
-                 "values": torch.rand(n, 3, generator=torch.Generator().manual_seed(0))}
+        scene = {
+            "means": means,
+            "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+            "scales": torch.full((n, 3), 5.0),
+            "opacities": torch.full((n,), 0.95),
+            "values": torch.rand(n, 3, generator=torch.Generator().manual_seed(0)),
+        }
         image_k, alpha_k, _, grads_k = render_with_grads(scene, camera, "kernel")
         image_t, alpha_t, _, grads_t = render_with_grads(scene, camera, "torch")
         assert alpha_k.min() > 1 - 1e-3
@@ -190,13 +201,16 @@ class TestDenseTwin:
         viewmat = camera.w2c.double()
         args = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near)
         index, _, means2d, conics, depths, boxes = reference.project_gaussians_torch(
-            scene["means"], scene["quats"], scene["scales"], scene["opacities"], viewmat, *args)
+            scene["means"], scene["quats"], scene["scales"], scene["opacities"], viewmat, *args
+        )
         offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
         opacities, values = scene["opacities"][index], scene["values"][index]
-        tiled, tiled_alpha = reference.rasterize_tiles_torch(means2d, conics, opacities, values,
-                                                             boxes, offsets, ids, camera.width, camera.height)
-        dense, dense_alpha = reference.rasterize_dense_torch(means2d, conics, opacities, values,
-                                                             depths, camera.width, camera.height)
+        tiled, tiled_alpha = reference.rasterize_tiles_torch(
+            means2d, conics, opacities, values, boxes, offsets, ids, camera.width, camera.height
+        )
+        dense, dense_alpha = reference.rasterize_dense_torch(
+            means2d, conics, opacities, values, depths, camera.width, camera.height
+        )
         assert dense_alpha.max() > 0.5
         torch.testing.assert_close(tiled, dense, rtol=1e-10, atol=1e-10)
         torch.testing.assert_close(tiled_alpha, dense_alpha, rtol=1e-10, atol=1e-10)
@@ -214,10 +228,12 @@ class TestGradcheck:
 
         def render(means, quats, scales, opacities, values):
             index, _, means2d, conics, depths, boxes = reference.project_gaussians_torch(
-                means, quats, scales, opacities, viewmat, *args)
+                means, quats, scales, opacities, viewmat, *args
+            )
             offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
-            return reference.rasterize_tiles_torch(means2d, conics, opacities[index], values[index], boxes, offsets,
-                                                   ids, camera.width, camera.height)
+            return reference.rasterize_tiles_torch(
+                means2d, conics, opacities[index], values[index], boxes, offsets, ids, camera.width, camera.height
+            )
 
         inputs = tuple(scene[k].clone().requires_grad_() for k in PARAMS)
         assert render(*inputs)[1].max() > 0.3
@@ -236,12 +252,14 @@ def render_with_grads_float64(scene: dict, camera):
     leaves = {k: scene[k].clone().requires_grad_() for k in PARAMS}
     args = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near)
     index, radii, means2d, conics, depths, boxes = reference.project_gaussians_torch(
-        leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], camera.w2c.double(), *args)
+        leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], camera.w2c.double(), *args
+    )
     means2d.retain_grad()
     offsets, ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
     values = torch.cat([leaves["values"][index], depths[:, None]], 1)
-    image, alpha = reference.rasterize_tiles_torch(means2d, conics, leaves["opacities"][index], values, boxes,
-                                                   offsets, ids, camera.width, camera.height)
+    image, alpha = reference.rasterize_tiles_torch(
+        means2d, conics, leaves["opacities"][index], values, boxes, offsets, ids, camera.width, camera.height
+    )
     weights = pixel_weights(camera.height, camera.width, values.shape[1] + 1).double()
     ((image * weights[..., :-1]).sum() + (alpha * weights[..., -1:]).sum()).backward()
     grads = {k: leaves[k].grad for k in PARAMS}

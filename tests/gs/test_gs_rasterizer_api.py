@@ -3,11 +3,11 @@ the kernel in layouts torch likes to hand out (expanded, strided, other dtypes).
 
 import pytest
 import torch
+from gs_scenes import make_camera, random_gaussians
 
 from backbones.gs import rasterizer, reference
 from backbones.gs.rasterizer import project_gaussians, render_gaussians
 from mono_hdr_plugin.core.cameras import Camera
-from gs_scenes import make_camera, random_gaussians
 
 PARAMS = ("means", "quats", "scales", "opacities", "values")
 
@@ -39,10 +39,14 @@ class TestPlainSums:
     def test_kernel_matches_twin(self, loss):
         camera = make_camera()
         scene = random_gaussians(120, seed=3)
-        loss_of = {"image": lambda out: out[0].sum(), "alpha": lambda out: out[1].sum(),
-                   "both": lambda out: out[0].sum() + 2 * out[1].sum()}[loss]
-        assert_same_gradients(gradients_of(loss_of, scene, camera, "kernel"),
-                              gradients_of(loss_of, scene, camera, "torch"))
+        loss_of = {
+            "image": lambda out: out[0].sum(),
+            "alpha": lambda out: out[1].sum(),
+            "both": lambda out: out[0].sum() + 2 * out[1].sum(),
+        }[loss]
+        assert_same_gradients(
+            gradients_of(loss_of, scene, camera, "kernel"), gradients_of(loss_of, scene, camera, "torch")
+        )
 
     def test_projection_sums(self):
         camera = make_camera()
@@ -50,8 +54,9 @@ class TestPlainSums:
         grads = {}
         for backend in ("kernel", "torch"):
             inputs = leaves(scene)
-            projected = project_gaussians(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"],
-                                          camera, backend=backend)
+            projected = project_gaussians(
+                inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], camera, backend=backend
+            )
             (projected.means2d.sum() + projected.conics.sum() + projected.depths.sum()).backward()
             grads[backend] = {k: inputs[k].grad for k in ("means", "quats", "scales")}
         assert_same_gradients(grads["kernel"], grads["torch"])
@@ -65,8 +70,9 @@ class TestInputs:
         wide = {k: torch.stack([v, torch.zeros_like(v)], 1).to(dtype) for k, v in scene.items()}
         strided = {k: v[:, 0] for k, v in wide.items()}  # every other row in memory (a float32 one stays strided)
         assert not strided["means"].is_contiguous() and strided["means"].dtype == dtype
-        double_camera = Camera(camera.c2w.double(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-                               camera.height, camera.near)
+        double_camera = Camera(
+            camera.c2w.double(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.near
+        )
         image, alpha, _ = render_gaussians(*(strided[k] for k in PARAMS), double_camera)
         expected_image, expected_alpha, _ = render_gaussians(*(scene[k] for k in PARAMS), camera)
         assert image.dtype == torch.float32
@@ -80,10 +86,18 @@ class TestInputs:
         assert image.shape == (20, 24, 5) and alpha.shape == (20, 24, 1)
         assert 0.2 < alpha.max() <= 1.0 and alpha.min() >= 0.0
 
-    @pytest.mark.parametrize("name,bad", [("means", torch.zeros(5, 2)), ("means", torch.zeros(5, 3, 1)),
-                                          ("quats", torch.zeros(5, 3)), ("scales", torch.zeros(5, 4)),
-                                          ("quats", torch.zeros(4, 4)), ("scales", torch.zeros(6, 3)),
-                                          ("opacities", torch.zeros(5, 1))])
+    @pytest.mark.parametrize(
+        "name,bad",
+        [
+            ("means", torch.zeros(5, 2)),
+            ("means", torch.zeros(5, 3, 1)),
+            ("quats", torch.zeros(5, 3)),
+            ("scales", torch.zeros(5, 4)),
+            ("quats", torch.zeros(4, 4)),
+            ("scales", torch.zeros(6, 3)),
+            ("opacities", torch.zeros(5, 1)),
+        ],
+    )
     def test_bad_shapes_are_refused_with_the_name(self, name, bad):
         scene = random_gaussians(5)
         scene[name] = bad

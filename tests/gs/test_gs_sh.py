@@ -9,14 +9,19 @@ from backbones.gs.sh import SH_C0, SH_C1, eval_sh, num_sh_bases, view_directions
 def sh_scene(n: int = 300, degree: int = 3, seed: int = 0) -> dict:
     gen = torch.Generator().manual_seed(seed)
     bases = num_sh_bases(degree)
-    return {"sh_dc": torch.randn(n, 1, 3, generator=gen), "sh_rest": torch.randn(n, bases - 1, 3, generator=gen) * 0.3,
-            "means": torch.randn(n, 3, generator=gen) * 2, "center": torch.tensor([0.3, -4.0, 0.5])}
+    return {
+        "sh_dc": torch.randn(n, 1, 3, generator=gen),
+        "sh_rest": torch.randn(n, bases - 1, 3, generator=gen) * 0.3,
+        "means": torch.randn(n, 3, generator=gen) * 2,
+        "center": torch.tensor([0.3, -4.0, 0.5]),
+    }
 
 
 def colors_with_grads(scene: dict, index: torch.Tensor, degree: int, backend: str):
     leaves = {k: scene[k].clone().requires_grad_() for k in ("sh_dc", "sh_rest", "means")}
-    colors = visible_colors(degree, leaves["sh_dc"], leaves["sh_rest"], leaves["means"], index, scene["center"],
-                            backend=backend)
+    colors = visible_colors(
+        degree, leaves["sh_dc"], leaves["sh_rest"], leaves["means"], index, scene["center"], backend=backend
+    )
     weights = torch.rand(colors.shape, generator=torch.Generator().manual_seed(5)) - 0.4
     (colors * weights).sum().backward()
     # degree 0 does not depend on the view direction: the twin leaves no gradient at all

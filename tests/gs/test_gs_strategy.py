@@ -6,10 +6,10 @@ from types import SimpleNamespace
 
 import pytest
 import torch
+from test_gs_backbone import make_optimizer, make_scene, train_step
 
 from backbones.gs import GAUSSIAN_PARAMETERS, DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.strategy import RefineSchedule, relocation
-from test_gs_backbone import make_optimizer, make_scene, train_step
 
 
 def assert_optimizer_consistent(backbone, optimizer):
@@ -36,8 +36,9 @@ def fake_projection(n: int, grad_rows: slice, width: int, height: int):
     means2d = torch.zeros(n, 2, requires_grad=True)
     means2d.grad = torch.zeros(n, 2)
     means2d.grad[grad_rows] = 1.0
-    return SimpleNamespace(index=torch.arange(n), means2d=means2d, radii=torch.ones(n, dtype=torch.int32),
-                           width=width, height=height)
+    return SimpleNamespace(
+        index=torch.arange(n), means2d=means2d, radii=torch.ones(n, dtype=torch.int32), width=width, height=height
+    )
 
 
 class TestRelocationFormula:
@@ -47,8 +48,11 @@ class TestRelocationFormula:
         opacity, scale = 0.63, 0.2
         new_o, new_s = relocation(torch.tensor([opacity]), torch.full((1, 3), scale), torch.tensor([copies]))
         expected_o = 1 - (1 - opacity) ** (1 / copies)
-        denominator = sum(math.comb(i - 1, k) * (-1) ** k * expected_o ** (k + 1) / math.sqrt(k + 1)
-                          for i in range(1, copies + 1) for k in range(i))
+        denominator = sum(
+            math.comb(i - 1, k) * (-1) ** k * expected_o ** (k + 1) / math.sqrt(k + 1)
+            for i in range(1, copies + 1)
+            for k in range(i)
+        )
         assert new_o.item() == pytest.approx(expected_o, rel=1e-6)
         torch.testing.assert_close(new_s, torch.full((1, 3), scale * opacity / denominator))
 
@@ -114,8 +118,9 @@ class TestMcmcStrategy:
         assert backbone.config.strategy.grow(backbone, optimizer, backbone.budget) == 0
 
     def test_training_never_exceeds_the_budget(self):
-        backbone, optimizer, camera, target = self._setup(budget=330, refine_start=0, refine_every=1,
-                                                          min_refine_every=1)
+        backbone, optimizer, camera, target = self._setup(
+            budget=330, refine_start=0, refine_every=1, min_refine_every=1
+        )
         backbone.set_run_length(30_000)
         counts = []
         for step in range(1, 12):
@@ -131,7 +136,7 @@ class TestMcmcStrategy:
         backbone, optimizer, _, _ = self._setup()
         with torch.no_grad():
             backbone.opacity_logits[:10] = -6.0  # opacity 0.0025: gate ~ 0.67
-            backbone.opacity_logits[10:] = 2.0   # opacity 0.88: gate ~ 0
+            backbone.opacity_logits[10:] = 2.0  # opacity 0.88: gate ~ 0
         before = backbone.means.detach().clone()
         backbone.config.strategy.add_position_noise(backbone, means_lr=1e-3)
         moved = (backbone.means.detach() - before).norm(dim=-1)
@@ -161,7 +166,7 @@ class TestDefaultStrategy:
         n = backbone.num_gaussians
         tag_moments(optimizer, n)
         with torch.no_grad():
-            backbone.log_scales[:4] = -8.0   # small: cloned
+            backbone.log_scales[:4] = -8.0  # small: cloned
             backbone.log_scales[4:8] = -0.5  # large: split
         old_means = backbone.means.detach().clone()
         old_scales = backbone.log_scales.detach().clone()
@@ -169,19 +174,27 @@ class TestDefaultStrategy:
         state = strategy.initial_state(n)  # forget step 0's real gradients
         schedule = strategy.schedule(backbone.max_steps)
         step = schedule.every * (schedule.start // schedule.every + 1)
-        strategy.step_post_backward(backbone, optimizer, state, step, backbone.max_steps,
-                                    fake_projection(n, slice(0, 8), camera.width, camera.height), backbone.budget)
+        strategy.step_post_backward(
+            backbone,
+            optimizer,
+            state,
+            step,
+            backbone.max_steps,
+            fake_projection(n, slice(0, 8), camera.width, camera.height),
+            backbone.budget,
+        )
 
         assert backbone.num_gaussians == n + 4 + 4  # 4 clones, 4 splits into 2
         assert_optimizer_consistent(backbone, optimizer)
         tags = optimizer.state[backbone.means]["exp_avg"][:, 0]
         survivors = [i for i in range(n) if not 4 <= i < 8]
-        torch.testing.assert_close(tags[:n - 4], torch.tensor(survivors, dtype=torch.float32))
-        torch.testing.assert_close(backbone.means.detach()[:n - 4], old_means[survivors])
-        assert tags[n - 4:].abs().max() == 0, "new rows start with zero moments"
-        torch.testing.assert_close(backbone.means.detach()[n - 4:n], old_means[:4])  # clones
-        torch.testing.assert_close(backbone.log_scales.detach()[n:],
-                                   (old_scales[4:8] - torch.log(torch.tensor(1.6))).repeat(2, 1))
+        torch.testing.assert_close(tags[: n - 4], torch.tensor(survivors, dtype=torch.float32))
+        torch.testing.assert_close(backbone.means.detach()[: n - 4], old_means[survivors])
+        assert tags[n - 4 :].abs().max() == 0, "new rows start with zero moments"
+        torch.testing.assert_close(backbone.means.detach()[n - 4 : n], old_means[:4])  # clones
+        torch.testing.assert_close(
+            backbone.log_scales.detach()[n:], (old_scales[4:8] - torch.log(torch.tensor(1.6))).repeat(2, 1)
+        )
         assert state["grad2d_sum"].shape == (n + 8,) and state["grad2d_sum"].abs().max() == 0
         train_step(backbone, optimizer, camera, target, step + 1)  # Adam still steps
         assert torch.isfinite(backbone.means).all()
@@ -193,8 +206,15 @@ class TestDefaultStrategy:
         strategy = backbone.config.strategy
         schedule = strategy.schedule(backbone.max_steps)
         step = schedule.every * (schedule.start // schedule.every + 1)
-        strategy.step_post_backward(backbone, optimizer, strategy.initial_state(n), step, backbone.max_steps,
-                                    fake_projection(n, slice(0, 100), camera.width, camera.height), backbone.budget)
+        strategy.step_post_backward(
+            backbone,
+            optimizer,
+            strategy.initial_state(n),
+            step,
+            backbone.max_steps,
+            fake_projection(n, slice(0, 100), camera.width, camera.height),
+            backbone.budget,
+        )
         assert n == 300 and backbone.num_gaussians == 305
         assert_optimizer_consistent(backbone, optimizer)
 
@@ -240,5 +260,5 @@ class TestDefaultStrategy:
 def test_refine_schedule_due():
     schedule = RefineSchedule.scaled(3000, 500, 25_000, 100, 10)
     assert (schedule.start, schedule.stop, schedule.every) == (50, 2500, 10)
-    assert [s for s in range(0, 3000) if schedule.due(s)][:2] == [60, 70]
+    assert [s for s in range(3000) if schedule.due(s)][:2] == [60, 70]
     assert not schedule.due(2500) and schedule.due(2490)

@@ -7,16 +7,22 @@ import pytest
 import torch
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig
-from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.methods.base import method_names
+from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def gs_trainer(tmp_path, scene, method: str = "mono", max_steps: int = 2, **backbone_overrides) -> Trainer:
     backbone = GaussianConfig(random_init_points=500, **backbone_overrides)
-    config = train_config_for(GaussianConfig, method)(backbone=backbone, out=tmp_path / "run", quiet=True,
-                                                      save_renders=False, checkpoint_every=10**9, max_steps=max_steps)
+    config = train_config_for(GaussianConfig, method)(
+        backbone=backbone,
+        out=tmp_path / "run",
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_steps=max_steps,
+    )
     return Trainer(config, "gs", scene)
 
 
@@ -40,8 +46,11 @@ class TestTwoStepsOfEveryMethod:
 class TestResumeAcrossDensification:
     def test_checkpoint_after_densify_restores_same_next_loss(self, tmp_path, voxel_scene):
         # max_steps = 30k keeps the schedule unscaled: refine at steps 2 and 4
-        overrides = dict(strategy=DefaultStrategy(refine_start=2, refine_every=2, min_refine_every=1,
-                                                  grad_threshold=0.0, reset_opacity_every=10**6))
+        overrides = dict(
+            strategy=DefaultStrategy(
+                refine_start=2, refine_every=2, min_refine_every=1, grad_threshold=0.0, reset_opacity_every=10**6
+            )
+        )
         trainer = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, **overrides)
         for _ in range(5):
             trainer.train_step()
@@ -67,9 +76,16 @@ def studio_trainer(tmp_path, preset: str, steps: int) -> Trainer:
 
     scene = load_scene(DataConfig(scene="demo"))
     backbone = GaussianBackbone.presets()[preset]
-    config = train_config_for(GaussianConfig)(backbone=backbone, preset=preset, out=tmp_path / preset, quiet=True,
-                                              save_renders=False, checkpoint_every=10**9, max_steps=steps,
-                                              max_eval_views=4)
+    config = train_config_for(GaussianConfig)(
+        backbone=backbone,
+        preset=preset,
+        out=tmp_path / preset,
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_steps=steps,
+        max_eval_views=4,
+    )
     return Trainer(config, "gs", scene)
 
 
@@ -129,9 +145,16 @@ class TestTimeBudget:
 
     def budget_trainer(self, tmp_path, scene, seconds: float) -> Trainer:
         backbone = GaussianBackbone.presets()["cpu"]
-        config = train_config_for(GaussianConfig)(backbone=backbone, out=tmp_path / "run", quiet=True,
-                                                  save_renders=False, checkpoint_every=10**9, max_steps=100_000,
-                                                  max_seconds=seconds, max_eval_views=1)
+        config = train_config_for(GaussianConfig)(
+            backbone=backbone,
+            out=tmp_path / "run",
+            quiet=True,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_steps=100_000,
+            max_seconds=seconds,
+            max_eval_views=1,
+        )
         return Trainer(config, "gs", scene)
 
     def test_stops_on_time_and_rescales_every_estimate(self, tmp_path, voxel_scene, slowing_clock, monkeypatch):
@@ -155,8 +178,12 @@ class TestTimeBudget:
         for _ in range(40):
             trainer.train_step()
         trainer.save()
-        saved = {"run_length": trainer.run_length, "degree": trainer.backbone.active_sh_degree,
-                 "count": trainer.backbone.num_gaussians, "seconds": trainer.train_seconds}
+        saved = {
+            "run_length": trainer.run_length,
+            "degree": trainer.backbone.active_sh_degree,
+            "count": trainer.backbone.num_gaussians,
+            "seconds": trainer.train_seconds,
+        }
         resumed = self.budget_trainer(tmp_path, voxel_scene, seconds=12.0)
         resumed.restore(load_checkpoint(trainer.checkpoint_path()))
         assert resumed.backbone.max_steps == resumed.run_length == saved["run_length"]

@@ -2,7 +2,6 @@
 
 import pytest
 import torch
-
 from hard_scenes import write_disk_scene
 
 

@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 
 import torch
+from register_backbone import VoxelGridConfig  # examples/, on sys.path via tests/conftest.py
 from torch import Tensor
 
 from backbones.gs import DefaultStrategy, GaussianConfig
@@ -18,25 +19,33 @@ from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
-from register_backbone import VoxelGridConfig  # examples/, on sys.path via tests/conftest.py
 
 BACKBONES = ("voxel-grid", "gs", "nerf")
 BOUNDS = (-torch.ones(3), torch.ones(3))
 
 
-def orbit_camera(index: int, count: int, size: int, radius: float = 3.0, height: float = 0.8,
-                 near: float = 1.0, far: float = 5.0) -> Camera:
+def orbit_camera(
+    index: int, count: int, size: int, radius: float = 3.0, height: float = 0.8, near: float = 1.0, far: float = 5.0
+) -> Camera:
     angle = 2 * math.pi * index / count
     eye = torch.tensor([radius * math.cos(angle), radius * math.sin(angle), height])
-    return Camera(look_at(eye, torch.zeros(3)), fx=1.1 * size, fy=1.1 * size, cx=size / 2, cy=size / 2,
-                  width=size, height=size, near=near, far=far)
+    return Camera(
+        look_at(eye, torch.zeros(3)),
+        fx=1.1 * size,
+        fy=1.1 * size,
+        cx=size / 2,
+        cy=size / 2,
+        width=size,
+        height=size,
+        near=near,
+        far=far,
+    )
 
 
 def radiance_pattern(camera: Camera, seed: int) -> Tensor:
     """A smooth HDR image [H, W, 3] in about [0.02, 4]: a bright blob on a dim gradient."""
     gen = torch.Generator().manual_seed(seed)
-    ys, xs = torch.meshgrid(torch.linspace(-1, 1, camera.height), torch.linspace(-1, 1, camera.width),
-                            indexing="ij")
+    ys, xs = torch.meshgrid(torch.linspace(-1, 1, camera.height), torch.linspace(-1, 1, camera.width), indexing="ij")
     centre = torch.rand(2, generator=gen) * 0.6 - 0.3
     blob = torch.exp(-((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) / 0.15)
     tint = torch.tensor([1.0, 0.7, 0.4]) + 0.2 * torch.rand(3, generator=gen)
@@ -49,9 +58,17 @@ def photograph(hdr: Tensor, exposure: float) -> Tensor:
     return torch.round(ldr * 255.0) / 255.0
 
 
-def make_scene(name: str = "hard", size: int = 16, train_views: int = 4, test_views: int = 2,
-               exposure: float = 0.25, hdr_transform=None, ldr_override=None,
-               camera_for=orbit_camera, points: Tensor | None = None) -> SceneData:
+def make_scene(
+    name: str = "hard",
+    size: int = 16,
+    train_views: int = 4,
+    test_views: int = 2,
+    exposure: float = 0.25,
+    hdr_transform=None,
+    ldr_override=None,
+    camera_for=orbit_camera,
+    points: Tensor | None = None,
+) -> SceneData:
     """A synthetic scene. hdr_transform(hdr, index) -> hdr bends the ground truth;
     ldr_override(index) -> image replaces the photo (e.g. pure white)."""
     count = train_views + test_views
@@ -62,13 +79,20 @@ def make_scene(name: str = "hard", size: int = 16, train_views: int = 4, test_vi
         if hdr_transform is not None:
             hdr = hdr_transform(hdr, index).float()
         image = photograph(hdr, exposure) if ldr_override is None else ldr_override(index).float()
-        views.append(View(camera=camera, image=image, exposure=exposure, view_id=index,
-                          name=f"{name}_{index:03d}", hdr=hdr))
+        views.append(
+            View(camera=camera, image=image, exposure=exposure, view_id=index, name=f"{name}_{index:03d}", hdr=hdr)
+        )
     if points is None:
         points = torch.rand(150, 3, generator=torch.Generator().manual_seed(1)) * 1.6 - 0.8
-    return SceneData(name=name, train=views[:train_views], test=views[train_views:],
-                     bounds_min=BOUNDS[0], bounds_max=BOUNDS[1], points=points,
-                     point_colors=torch.full_like(points, 0.5))
+    return SceneData(
+        name=name,
+        train=views[:train_views],
+        test=views[train_views:],
+        bounds_min=BOUNDS[0],
+        bounds_max=BOUNDS[1],
+        points=points,
+        point_colors=torch.full_like(points, 0.5),
+    )
 
 
 def backbone_config(backbone: str, **overrides):
@@ -76,24 +100,56 @@ def backbone_config(backbone: str, **overrides):
     if backbone == "voxel-grid":
         return VoxelGridConfig(**{"resolution": 8, "samples_per_ray": 16, **overrides})
     if backbone == "gs":
-        return GaussianConfig(**{"sh_degree": 1, "random_init_points": 150,
-                                 "strategy": DefaultStrategy(max_gaussians=500), **overrides})
+        return GaussianConfig(
+            **{"sh_degree": 1, "random_init_points": 150, "strategy": DefaultStrategy(max_gaussians=500), **overrides}
+        )
     if backbone == "nerf":
         field = overrides.pop("field", "cpu")
-        return NerfConfig(field=MlpFieldConfig(width=16, depth=3, skip_layer=1, coarse_samples=8, fine_samples=8,
-                                               rays_per_step=64, density_activation="softplus") if field == "paper"
-                          else GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16,
-                                               min_step=0.125, max_samples_per_ray=16, occupancy_resolution=8,
-                                               rays_per_step=64, samples_per_step=512),
-                          render_chunk=4096, **overrides)
+        return NerfConfig(
+            field=MlpFieldConfig(
+                width=16,
+                depth=3,
+                skip_layer=1,
+                coarse_samples=8,
+                fine_samples=8,
+                rays_per_step=64,
+                density_activation="softplus",
+            )
+            if field == "paper"
+            else GridFieldConfig(
+                levels=2,
+                min_resolution=4,
+                max_resolution=8,
+                hidden_width=16,
+                min_step=0.125,
+                max_samples_per_ray=16,
+                occupancy_resolution=8,
+                rays_per_step=64,
+                samples_per_step=512,
+            ),
+            render_chunk=4096,
+            **overrides,
+        )
     raise ValueError(f"unknown backbone {backbone!r}")
 
 
-def make_trainer(tmp_path: Path, backbone: str, scene: SceneData, max_steps: int, method: str = "mono",
-                 backbone_overrides: dict | None = None, **overrides) -> Trainer:
+def make_trainer(
+    tmp_path: Path,
+    backbone: str,
+    scene: SceneData,
+    max_steps: int,
+    method: str = "mono",
+    backbone_overrides: dict | None = None,
+    **overrides,
+) -> Trainer:
     config = train_config_for(type(backbone_config(backbone)), method)(
-        backbone=backbone_config(backbone, **(backbone_overrides or {})), out=tmp_path / "run",
-        quiet=True, save_renders=False, checkpoint_every=10**9, max_steps=max_steps)
+        backbone=backbone_config(backbone, **(backbone_overrides or {})),
+        out=tmp_path / "run",
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_steps=max_steps,
+    )
     config.hdr.hidden = 32  # converters keep their structure at a quarter of the cost
     for key, value in overrides.items():
         target = config.hdr if hasattr(config.hdr, key) else config
@@ -114,8 +170,9 @@ def write_disk_scene(folder: Path, size: int = 16, views: int = 6, layout: str =
         camera = orbit_camera(index, views, size)
         hdr = radiance_pattern(camera, seed=index)
         shots = [Shot(t, constant(photograph(hdr, t).numpy()), f"{index}_{e}") for e, t in enumerate(EXPOSURES)]
-        captured.append(CapturedView(index, camera, "train" if index % 2 == 0 else "test", shots,
-                                     constant(hdr.numpy())))
+        captured.append(
+            CapturedView(index, camera, "train" if index % 2 == 0 else "test", shots, constant(hdr.numpy()))
+        )
     write_layout(CapturedScene("hard-disk", captured, BOUNDS[0], BOUNDS[1]), folder, layout)
 
 

@@ -10,17 +10,17 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
-
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+import torch
 from hard_scenes import make_scene, make_trainer, write_disk_scene
-from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+
 from mono_hdr_plugin.apps.cli import main
+from mono_hdr_plugin.core.registry import RegistryError, get_backbone
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_image
 from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.core.registry import RegistryError, get_backbone
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.training.trainer import build_trainer
 
 
@@ -33,9 +33,25 @@ def data(tmp_path, disk_scene):
 
 
 def train_args(data, out, *extra) -> list[str]:
-    return ["train", "voxel-grid", "--data", str(data), "--out", str(out), "--quiet", "--max-steps", "1",
-            "--no-save-renders", "--max-eval-views", "1", "--backbone.resolution", "4",
-            "--backbone.samples-per-ray", "4", *extra]
+    return [
+        "train",
+        "voxel-grid",
+        "--data",
+        str(data),
+        "--out",
+        str(out),
+        "--quiet",
+        "--max-steps",
+        "1",
+        "--no-save-renders",
+        "--max-eval-views",
+        "1",
+        "--backbone.resolution",
+        "4",
+        "--backbone.samples-per-ray",
+        "4",
+        *extra,
+    ]
 
 
 def edit_json(path, edit) -> None:
@@ -86,8 +102,7 @@ def test_transforms_without_frames_names_it(data):
 
 
 def test_scaled_rotation_in_pose_names_file_and_frame(data):
-    edit_json(data / "transforms_train.json",
-              lambda t: t["frames"][1]["transform_matrix"][0].__setitem__(0, 5.0))
+    edit_json(data / "transforms_train.json", lambda t: t["frames"][1]["transform_matrix"][0].__setitem__(0, 5.0))
     with pytest.raises(DatasetError, match=r"transforms_train.json frame './train/r_1'.*not orthonormal"):
         load_scene(DataConfig(data=data))
 
@@ -95,8 +110,11 @@ def test_scaled_rotation_in_pose_names_file_and_frame(data):
 def test_negative_field_of_view_names_file(data):
     for split in ("train", "test"):
         edit_json(data / f"transforms_{split}.json", lambda t: t.update({"camera_angle_x": -0.5}))
-    with pytest.raises(DatasetError, match=r"transforms_train.json: camera_angle_x \(field of view, radians\) must "
-                                           r"be a number in \(0, 3.14159\), got -0.5"):
+    with pytest.raises(
+        DatasetError,
+        match=r"transforms_train.json: camera_angle_x \(field of view, radians\) must "
+        r"be a number in \(0, 3.14159\), got -0.5",
+    ):
         load_scene(DataConfig(data=data))
 
 
@@ -122,17 +140,20 @@ def test_missing_hdr_ground_truth_trains_that_view_on_ldr_only(data):
 
 
 # ---------------------------------------------------------------------------- CLI
-@pytest.mark.parametrize("flag,value,message", [
-    ("--hdr-view-ratio", "0:0", "--hdr-view-ratio"),
-    ("--hdr-view-ratio", "2", "--hdr-view-ratio must look like 2:1"),
-    ("--checkpoint-every", "0", "--checkpoint-every must be an integer >= 1"),
-    ("--max-steps", "-1", "--max-steps must be an integer >= 0"),
-    ("--eval-every", "-2", "--eval-every must be an integer >= 0"),
-    ("--nan-patience", "0", "--nan-patience must be an integer >= 1"),
-    ("--max-eval-views", "0", "--max-eval-views must be an integer >= 1"),
-    ("--downscale", "0", "--downscale must be a positive integer, got 0"),
-    ("--exposure-index", "5", r"--exposure-index must be an integer in \[0, 2\], got 5"),
-])
+@pytest.mark.parametrize(
+    "flag,value,message",
+    [
+        ("--hdr-view-ratio", "0:0", "--hdr-view-ratio"),
+        ("--hdr-view-ratio", "2", "--hdr-view-ratio must look like 2:1"),
+        ("--checkpoint-every", "0", "--checkpoint-every must be an integer >= 1"),
+        ("--max-steps", "-1", "--max-steps must be an integer >= 0"),
+        ("--eval-every", "-2", "--eval-every must be an integer >= 0"),
+        ("--nan-patience", "0", "--nan-patience must be an integer >= 1"),
+        ("--max-eval-views", "0", "--max-eval-views must be an integer >= 1"),
+        ("--downscale", "0", "--downscale must be a positive integer, got 0"),
+        ("--exposure-index", "5", r"--exposure-index must be an integer in \[0, 2\], got 5"),
+    ],
+)
 def test_bad_run_flag_is_refused_before_loading(tmp_path, flag, value, message, monkeypatch):
     import mono_hdr_plugin.data.loading as loading
 
@@ -141,9 +162,12 @@ def test_bad_run_flag_is_refused_before_loading(tmp_path, flag, value, message, 
         main(train_args(tmp_path / "unused", tmp_path / "run", flag, value))
 
 
-@pytest.mark.parametrize("flag,value,message", [
-    ("--fixed-exposure", "3", "no photo at 3.0 s.*--fixed-exposure"),
-])
+@pytest.mark.parametrize(
+    "flag,value,message",
+    [
+        ("--fixed-exposure", "3", "no photo at 3.0 s.*--fixed-exposure"),
+    ],
+)
 def test_bad_data_flag_names_it(tmp_path, data, flag, value, message):
     extra = ["--protocol", "fixed"] if flag == "--fixed-exposure" else []
     with pytest.raises(DatasetError, match=message):
@@ -155,12 +179,15 @@ def test_fixed_protocol_without_exposure(tmp_path, data):
         main(train_args(data, tmp_path / "run", "--protocol", "fixed"))
 
 
-@pytest.mark.parametrize("argv,named", [
-    (["train", "no-such-backbone"], "no-such-backbone"),
-    (["train", "voxel-grid", "--method", "bogus"], "bogus"),
-    (["train", "voxel-grid", "--layout", "bogus"], "bogus"),
-    (["train", "voxel-grid", "--max-steps", "many"], "many"),
-])
+@pytest.mark.parametrize(
+    "argv,named",
+    [
+        (["train", "no-such-backbone"], "no-such-backbone"),
+        (["train", "voxel-grid", "--method", "bogus"], "bogus"),
+        (["train", "voxel-grid", "--layout", "bogus"], "bogus"),
+        (["train", "voxel-grid", "--max-steps", "many"], "many"),
+    ],
+)
 def test_unparseable_cli_value_exits_2_naming_it(argv, named, capsys, monkeypatch):
     from mono_hdr_plugin.apps import cli
 
@@ -209,8 +236,18 @@ def test_eval_and_render_of_missing_checkpoint(tmp_path, command):
 def test_render_non_positive_exposure_is_refused_before_loading(tmp_path):
     """The exposure check comes first: a missing checkpoint would otherwise be reported instead."""
     with pytest.raises(ValueError, match="--exposures must be a positive number, got 0.0"):
-        main(["render", "--checkpoint", str(tmp_path / "not-yet-loaded.pt"), "--out", str(tmp_path / "r"),
-              "--exposures", "1", "0"])
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(tmp_path / "not-yet-loaded.pt"),
+                "--out",
+                str(tmp_path / "r"),
+                "--exposures",
+                "1",
+                "0",
+            ]
+        )
 
 
 # ------------------------------------------------------------------------ checkpoints

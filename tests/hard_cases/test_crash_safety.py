@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from cli_driver import environment, train_args, write_driver
+
 from mono_hdr_plugin.training import checkpoints
 from mono_hdr_plugin.training.checkpoints import load_checkpoint, save_checkpoint
 
@@ -22,8 +22,11 @@ MAX_STEPS = 100_000  # never reached: every run but the last is killed
 
 
 def train_command(driver: Path, data: Path, out: Path, max_steps: int, resume: bool) -> list[str]:
-    return [sys.executable, str(driver), *train_args(data, out, max_steps, "--checkpoint-every", "1",
-                                                     *(["--resume"] if resume else []))]
+    return [
+        sys.executable,
+        str(driver),
+        *train_args(data, out, max_steps, "--checkpoint-every", "1", *(["--resume"] if resume else [])),
+    ]
 
 
 def checkpoint_files(out: Path) -> list[str]:
@@ -38,8 +41,12 @@ def kill_at_random_moments(tmp_path: Path, data: Path, kills: int, seed: int) ->
     latest = out / "checkpoints" / "latest.pt"
     last_step, seen_mtime = 0, 0
     for kill in range(kills):
-        process = subprocess.Popen(train_command(driver, data, out, MAX_STEPS, resume=kill > 0),
-                                   env=environment(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        process = subprocess.Popen(
+            train_command(driver, data, out, MAX_STEPS, resume=kill > 0),
+            env=environment(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         deadline = time.monotonic() + 120
         # wait until this run has written a checkpoint of its own, then kill at a random moment
         while time.monotonic() < deadline and process.poll() is None:
@@ -61,8 +68,13 @@ def kill_at_random_moments(tmp_path: Path, data: Path, kills: int, seed: int) ->
         last_step = payload["step"]
     # the final run resumes from the last checkpoint and finishes
     finish = last_step + 3
-    result = subprocess.run(train_command(driver, data, out, finish, resume=True), env=environment(),
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        train_command(driver, data, out, finish, resume=True),
+        env=environment(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"at step {last_step}" in result.stderr
     assert "which is no longer running; taking it over" in result.stderr  # the killed run's claim on --out

@@ -9,11 +9,11 @@ import warnings
 
 import numpy as np
 import pytest
-import torch
-
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+import torch
 from cli_driver import train_args
 from hard_scenes import make_scene, make_trainer, write_disk_scene
+
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import View
@@ -46,8 +46,11 @@ def test_all_zero_hdr_ground_truth_is_never_scored(data, tmp_path):
     the views train on LDR only, and metrics.json has no HDR figures."""
     for path in hdr_files(data):
         write_exr(path, np.zeros_like(read_exr(path)))
-    with pytest.warns(UserWarning, match=r"HDR ground truth of 6 view\(s\) carries no HDR information and is not used "
-                                         r"for training or HDR metrics \(.*train_hdr/hdr_000.exr is all zero"):
+    with pytest.warns(
+        UserWarning,
+        match=r"HDR ground truth of 6 view\(s\) carries no HDR information and is not used "
+        r"for training or HDR metrics \(.*train_hdr/hdr_000.exr is all zero",
+    ):
         main(train_args(data, tmp_path / "run", 2))
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert all(metrics[key] is None for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max"))
@@ -57,8 +60,11 @@ def test_all_zero_hdr_ground_truth_is_never_scored(data, tmp_path):
 def test_one_constant_view_is_left_out_and_named(data):
     path = data / "test_hdr" / "hdr_001.exr"
     write_exr(path, np.full_like(read_exr(path), 0.25))
-    with pytest.warns(UserWarning, match=r"1 view\(s\).*test_hdr/hdr_001.exr has one value \(0.25, 0.25, 0.25\) at "
-                                         "every pixel"):
+    with pytest.warns(
+        UserWarning,
+        match=r"1 view\(s\).*test_hdr/hdr_001.exr has one value \(0.25, 0.25, 0.25\) at "
+        "every pixel",
+    ):
         scene = load_scene(DataConfig(data=data))
     assert [v.hdr is None for v in scene.test] == [False, True, False]
 
@@ -68,8 +74,11 @@ def test_negative_hdr_ground_truth_is_refused_naming_the_file(data):
     pixels = read_exr(path)
     pixels[3:5, 3:5] = -pixels[3:5, 3:5]
     write_exr(path, pixels)
-    with pytest.raises(DatasetError, match=r"train_hdr/hdr_002.exr: HDR ground truth has 4 pixel\(s\) with negative "
-                                           r"values \(down to -\d.*\); radiance is never negative"):
+    with pytest.raises(
+        DatasetError,
+        match=r"train_hdr/hdr_002.exr: HDR ground truth has 4 pixel\(s\) with negative "
+        r"values \(down to -\d.*\); radiance is never negative",
+    ):
         load_scene(DataConfig(data=data))
 
 
@@ -79,8 +88,14 @@ def test_in_memory_scenes_are_held_to_the_same_rules():
     assert all(v.hdr is None for v in scene.train + scene.test)
     view = scene.train[0]
     with pytest.raises(DatasetError, match="hard_000: HDR ground truth has 256 pixel"):
-        View(camera=view.camera, image=view.image, exposure=view.exposure, view_id=0, name=view.name,
-             hdr=-torch.ones(16, 16, 3))
+        View(
+            camera=view.camera,
+            image=view.image,
+            exposure=view.exposure,
+            view_id=0,
+            name=view.name,
+            hdr=-torch.ones(16, 16, 3),
+        )
 
 
 @pytest.mark.parametrize("target", ["zeros", "constant"])
@@ -139,8 +154,11 @@ def test_transforms_fields_are_refused_naming_file_and_key(data, key, value, mes
 @pytest.mark.parametrize("value", [None, "x", True, -1, 0, 1e400, [2.0], {"t": 2}])
 def test_exposure_values_are_refused_naming_file_and_image(data, value):
     edit_json(data / "exposure_test.json", lambda table: table.update({"./test/r_1_3.png": value}))
-    with pytest.raises(DatasetError, match=r"exposure_test.json \['./test/r_1_3.png'\]: exposure time .* is not a "
-                                           "positive number of seconds"):
+    with pytest.raises(
+        DatasetError,
+        match=r"exposure_test.json \['./test/r_1_3.png'\]: exposure time .* is not a "
+        "positive number of seconds",
+    ):
         load_scene(DataConfig(data=data))
 
 
@@ -164,14 +182,17 @@ def real(tmp_path):
     return folder
 
 
-@pytest.mark.parametrize("column,value,message", [
-    (4, 0.0, r"image height, width and focal length \(columns 4, 9 and 14\) must be positive, got 0, "),
-    (9, -16.0, r"must be positive, got 16, -16, "),
-    (14, 0.0, r"must be positive, got 16, 16, 0"),
-    (15, math.inf, "NaN or Inf"),
-    (16, math.nan, "NaN or Inf"),
-    (17, 0.0, "exposure time 0.0 is not a positive number"),
-])
+@pytest.mark.parametrize(
+    "column,value,message",
+    [
+        (4, 0.0, r"image height, width and focal length \(columns 4, 9 and 14\) must be positive, got 0, "),
+        (9, -16.0, r"must be positive, got 16, -16, "),
+        (14, 0.0, r"must be positive, got 16, 16, 0"),
+        (15, math.inf, "NaN or Inf"),
+        (16, math.nan, "NaN or Inf"),
+        (17, 0.0, "exposure time 0.0 is not a positive number"),
+    ],
+)
 def test_poses_bounds_fields_are_refused_naming_the_file(real, column, value, message):
     rows = np.load(real / "poses_bounds_exps.npy")
     rows[0, column] = value
@@ -207,23 +228,56 @@ def replace_line(path, index, text):
     path.write_text("\n".join(lines) + "\n")
 
 
-@pytest.mark.parametrize("file,line,text,message", [
-    ("cameras.txt", 0, "1 PINHOLE 16 16 0 17.6 8 8", r"cameras.txt line 4: PARAMS\[0\] \(focal length\) must be a "
-                                                      r"positive number, got '0'"),
-    ("cameras.txt", 0, "1 PINHOLE 16 16 nan 17.6 8 8", r"line 4: PARAMS\[0\] .* got 'nan'"),
-    ("cameras.txt", 0, "1 PINHOLE 16 16 17.6 17.6 8 inf", r"line 4: PARAMS\[3\] must be a finite number, got 'inf'"),
-    ("cameras.txt", 0, "1 PINHOLE -16 16 17.6 17.6 8 8", r"line 4: WIDTH must be an integer from 1 to 1000000, got "
-                                                         r"'-16'"),
-    ("cameras.txt", 0, "1 PINHOLE 16 16 17.6 17.6 8", "camera model PINHOLE has 4 parameters, the line has 3"),
-    ("cameras.txt", 0, "1 FISHEYE 16 16 17.6", "MODEL 'FISHEYE' is not a COLMAP camera model"),
-    ("images.txt", 0, "1 0 0 0 0 0 0 3 1 000_0.png", "images.txt line 5: the rotation quaternion QW QX QY QZ is zero"),
-    ("images.txt", 0, "1 1 0 0 0 0 0 three 1 000_0.png", "images.txt line 5: TZ must be a finite number, got 'three'"),
-    ("images.txt", 0, "1 1 0 0 0 0 0 3 7 000_0.png", "images.txt line 5: CAMERA_ID 7 is not in cameras.txt"),
-    ("images.txt", 0, "1 1 0 0 0 0 0 3 1", "images.txt line 5: NAME is missing"),
-    ("images.txt", 1, "1 1 0 0 0 0 0 3 1 001_0.png", "images.txt line 7: IMAGE_ID 1 appears twice"),
-    ("points3D.txt", None, "1 0 nan 0 255 0 0 0.5", "points3D.txt line 4: Y must be a finite number, got 'nan'"),
-    ("points3D.txt", None, "1 0 0 0 300 0 0 0.5", "points3D.txt line 4: R must be an integer from 0 to 255, got '300'"),
-])
+@pytest.mark.parametrize(
+    "file,line,text,message",
+    [
+        (
+            "cameras.txt",
+            0,
+            "1 PINHOLE 16 16 0 17.6 8 8",
+            r"cameras.txt line 4: PARAMS\[0\] \(focal length\) must be a "
+            r"positive number, got '0'",
+        ),
+        ("cameras.txt", 0, "1 PINHOLE 16 16 nan 17.6 8 8", r"line 4: PARAMS\[0\] .* got 'nan'"),
+        (
+            "cameras.txt",
+            0,
+            "1 PINHOLE 16 16 17.6 17.6 8 inf",
+            r"line 4: PARAMS\[3\] must be a finite number, got 'inf'",
+        ),
+        (
+            "cameras.txt",
+            0,
+            "1 PINHOLE -16 16 17.6 17.6 8 8",
+            r"line 4: WIDTH must be an integer from 1 to 1000000, got "
+            r"'-16'",
+        ),
+        ("cameras.txt", 0, "1 PINHOLE 16 16 17.6 17.6 8", "camera model PINHOLE has 4 parameters, the line has 3"),
+        ("cameras.txt", 0, "1 FISHEYE 16 16 17.6", "MODEL 'FISHEYE' is not a COLMAP camera model"),
+        (
+            "images.txt",
+            0,
+            "1 0 0 0 0 0 0 3 1 000_0.png",
+            "images.txt line 5: the rotation quaternion QW QX QY QZ is zero",
+        ),
+        (
+            "images.txt",
+            0,
+            "1 1 0 0 0 0 0 three 1 000_0.png",
+            "images.txt line 5: TZ must be a finite number, got 'three'",
+        ),
+        ("images.txt", 0, "1 1 0 0 0 0 0 3 7 000_0.png", "images.txt line 5: CAMERA_ID 7 is not in cameras.txt"),
+        ("images.txt", 0, "1 1 0 0 0 0 0 3 1", "images.txt line 5: NAME is missing"),
+        ("images.txt", 1, "1 1 0 0 0 0 0 3 1 001_0.png", "images.txt line 7: IMAGE_ID 1 appears twice"),
+        ("points3D.txt", None, "1 0 nan 0 255 0 0 0.5", "points3D.txt line 4: Y must be a finite number, got 'nan'"),
+        (
+            "points3D.txt",
+            None,
+            "1 0 0 0 300 0 0 0.5",
+            "points3D.txt line 4: R must be an integer from 0 to 255, got '300'",
+        ),
+    ],
+)
 def test_colmap_text_fields_are_refused_naming_file_line_and_field(colmap_text, file, line, text, message):
     path = colmap_text / "sparse" / "0" / file
     if line is None:

@@ -13,17 +13,16 @@ import time
 from pathlib import Path
 
 import pytest
-import torch
-
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
+import torch
 from cli_driver import environment, run_cli, run_in_tmpfs, train_args, write_driver
 from hard_scenes import make_scene, make_trainer
+
 from mono_hdr_plugin.apps import cli
-from mono_hdr_plugin.training import checkpoints
-from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.outputs import OutputError
-from mono_hdr_plugin.training.hooks import TrainingInterrupted
+from mono_hdr_plugin.training import checkpoints
+from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
 from mono_hdr_plugin.training.trainer import Trainer, TrainingDiverged
 
 
@@ -92,14 +91,21 @@ def test_full_disk_on_a_real_tmpfs_keeps_the_previous_checkpoint(tmp_path, disk_
     assert sizing.returncode == 0, sizing.stderr
     size = (tmp_path / "sizing" / "checkpoints" / "latest.pt").stat().st_size
     mount, kept = tmp_path / "small-disk", tmp_path / "kept"
-    result = run_in_tmpfs(mount, f"size={size * 3 // 2 // 1024}k", [
-        [sys.executable, str(driver), *train_args(disk_scene, mount / "run", 5, "--checkpoint-every", "1")],
-        ["cp", "-a", str(mount / "run"), str(kept)]])
+    result = run_in_tmpfs(
+        mount,
+        f"size={size * 3 // 2 // 1024}k",
+        [
+            [sys.executable, str(driver), *train_args(disk_scene, mount / "run", 5, "--checkpoint-every", "1")],
+            ["cp", "-a", str(mount / "run"), str(kept)],
+        ],
+    )
     assert result.returncode == 2, result.stderr
     [line] = error_lines(result.stderr)
-    assert re.fullmatch(r"error: cannot save the checkpoint of step 2: .*latest.pt: No space left on device; the "
-                        r"disk is full: .* The last good checkpoint is .*latest.pt \(step 1\); --resume continues it",
-                        line), line
+    assert re.fullmatch(
+        r"error: cannot save the checkpoint of step 2: .*latest.pt: No space left on device; the "
+        r"disk is full: .* The last good checkpoint is .*latest.pt \(step 1\); --resume continues it",
+        line,
+    ), line
     assert load_checkpoint(kept / "checkpoints" / "latest.pt")["step"] == 1
     assert temporary_files(kept) == []
 
@@ -112,7 +118,8 @@ def test_read_only_out_is_one_line_before_anything_is_loaded(tmp_path, disk_scen
     assert result.returncode == 2, result.stderr
     assert result.stderr.strip().splitlines() == [
         f"error: --out {mount / 'run'} cannot be written (Read-only file system); the file system is read-only: "
-        "choose a location on a writable disk"]
+        "choose a location on a writable disk"
+    ]
 
 
 def test_unwritable_out_is_refused_before_the_data_is_loaded(tmp_path, disk_scene, monkeypatch):
@@ -141,8 +148,11 @@ def test_metrics_that_cannot_be_written_say_the_trained_model_is_saved(tmp_path,
 
     trainer = make_trainer(tmp_path, "voxel-grid", scene, max_steps=2)
     monkeypatch.setattr(train_module, "write_json", full)
-    with pytest.raises(OutputError, match=r"metrics.json: No space left on device; .*Training finished and its "
-                                          r"checkpoint .*latest.pt is saved: once fixed, score it with `mono-hdr eval"):
+    with pytest.raises(
+        OutputError,
+        match=r"metrics.json: No space left on device; .*Training finished and its "
+        r"checkpoint .*latest.pt is saved: once fixed, score it with `mono-hdr eval",
+    ):
         trainer.train()
     assert load_checkpoint(trainer.checkpoint_path())["step"] == 2
 
@@ -163,7 +173,9 @@ def test_ctrl_c_saves_a_checkpoint_and_prints_the_exact_resume_command(tmp_path,
     assert code == 130
     latest = tmp_path / "run" / "checkpoints" / "latest.pt"
     command = f"mono-hdr {shlex.join([*argv, '--resume'])}"
-    assert err.strip().splitlines()[-1] == f"interrupted at step 3; checkpoint saved to {latest}. Resume with: {command}"
+    assert (
+        err.strip().splitlines()[-1] == f"interrupted at step 3; checkpoint saved to {latest}. Resume with: {command}"
+    )
     assert load_checkpoint(latest)["step"] == 3
     monkeypatch.undo()
     main(shlex.split(command)[1:])
@@ -173,8 +185,13 @@ def test_ctrl_c_saves_a_checkpoint_and_prints_the_exact_resume_command(tmp_path,
 def test_ctrl_c_in_a_real_process(tmp_path, disk_scene):
     driver = write_driver(tmp_path)
     out = tmp_path / "run"
-    process = subprocess.Popen([sys.executable, str(driver), *train_args(disk_scene, out, 100_000)],
-                               env=environment(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, str(driver), *train_args(disk_scene, out, 100_000)],
+        env=environment(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 120
     while not (out / "checkpoints").exists() and time.monotonic() < deadline:  # the first save: training runs
         time.sleep(0.05)
@@ -182,8 +199,9 @@ def test_ctrl_c_in_a_real_process(tmp_path, disk_scene):
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
-    match = re.search(r"interrupted at step (\d+); checkpoint saved to (.*latest.pt)\. Resume with: (mono-hdr .*)$",
-                      err.strip())
+    match = re.search(
+        r"interrupted at step (\d+); checkpoint saved to (.*latest.pt)\. Resume with: (mono-hdr .*)$", err.strip()
+    )
     assert match, err
     step = int(match.group(1))
     assert load_checkpoint(Path(match.group(2)))["step"] == step
@@ -220,15 +238,21 @@ def test_sigkill_in_the_middle_of_a_checkpoint_write_keeps_the_previous_one(tmp_
     slow_driver.write_text(SLOW_WRITER + driver.read_text())
     out = tmp_path / "run"
     checkpoints_folder, latest = out / "checkpoints", out / "checkpoints" / "latest.pt"
-    process = subprocess.Popen([sys.executable, str(slow_driver), *train_args(disk_scene, out, 100_000,
-                                                                              "--checkpoint-every", "1")],
-                               env=environment(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    process = subprocess.Popen(
+        [sys.executable, str(slow_driver), *train_args(disk_scene, out, 100_000, "--checkpoint-every", "1")],
+        env=environment(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     try:
         deadline = time.monotonic() + 300
         # wait for a complete checkpoint and, after it, a next one half written
         while time.monotonic() < deadline:
-            partial = [p for p in checkpoints_folder.glob(".latest.tmp-*.pt") if p.stat().st_size > 4096] \
-                if latest.is_file() else []
+            partial = (
+                [p for p in checkpoints_folder.glob(".latest.tmp-*.pt") if p.stat().st_size > 4096]
+                if latest.is_file()
+                else []
+            )
             if partial:
                 break
             assert process.poll() is None, process.stderr.read().decode()[-2000:]
@@ -263,8 +287,9 @@ def test_a_run_with_no_finite_step_is_never_saved_or_scored(tmp_path, scene, mon
     trainer = make_trainer(tmp_path, "voxel-grid", scene, max_steps=5, nan_patience=100)
     original = trainer.method.losses
     monkeypatch.setattr(trainer.method, "losses", lambda *a: {k: v * torch.nan for k, v in original(*a).items()})
-    with pytest.raises(TrainingDiverged, match="none of the 5 steps had a finite loss.*nothing was trained, saved or "
-                                               "scored"):
+    with pytest.raises(
+        TrainingDiverged, match="none of the 5 steps had a finite loss.*nothing was trained, saved or scored"
+    ):
         trainer.train()
     assert not trainer.checkpoint_path().exists() and not (tmp_path / "run" / "metrics.json").exists()
 
@@ -276,8 +301,11 @@ def test_non_finite_parameters_never_replace_a_good_checkpoint(tmp_path, scene):
     trainer.config.max_steps = 4
     for group in trainer.optimizer.param_groups:  # what a NaN learning rate does (the flag itself is refused)
         group["base_lr"] = float("nan")
-    with pytest.raises(TrainingDiverged, match=r"parameters .* became NaN or Inf by step \d and are not saved\. The "
-                                               r"last good checkpoint is .*latest.pt \(step 2\)"):
+    with pytest.raises(
+        TrainingDiverged,
+        match=r"parameters .* became NaN or Inf by step \d and are not saved\. The "
+        r"last good checkpoint is .*latest.pt \(step 2\)",
+    ):
         trainer.train()
     assert trainer.checkpoint_path().read_bytes() == good
 
@@ -307,8 +335,10 @@ def test_resume_of_a_checkpoint_that_is_not_ours_is_one_line(tmp_path, disk_scen
     torch.save({"model": torch.nn.Linear(2, 2)}, latest)
     code, err = run_console(train_args(disk_scene, tmp_path / "run", 2, "--resume"), monkeypatch, capsys)
     assert code == 2
-    assert error_lines(err) == [f"error: {latest} is not a mono-hdr-3d checkpoint: it holds Python objects, not just "
-                                "tensors and numbers, and such files are never loaded (unpickling them can run code)"]
+    assert error_lines(err) == [
+        f"error: {latest} is not a mono-hdr-3d checkpoint: it holds Python objects, not just "
+        "tensors and numbers, and such files are never loaded (unpickling them can run code)"
+    ]
 
 
 # ------------------------------------------------------------------ file-system errors, one line each
@@ -316,8 +346,9 @@ def test_data_that_is_a_file_is_named_as_such(tmp_path, monkeypatch, capsys):
     (tmp_path / "scene.zip").write_bytes(b"PK")
     code, err = run_console(train_args(tmp_path / "scene.zip", tmp_path / "run", 1), monkeypatch, capsys)
     assert code == 2
-    assert error_lines(err) == [f"error: {tmp_path / 'scene.zip'}: is a file, not a folder; pass --data the dataset "
-                                "folder that holds it"]
+    assert error_lines(err) == [
+        f"error: {tmp_path / 'scene.zip'}: is a file, not a folder; pass --data the dataset folder that holds it"
+    ]
 
 
 def test_bare_file_system_errors_become_one_line_with_the_fix(monkeypatch, capsys):
@@ -327,8 +358,10 @@ def test_bare_file_system_errors_become_one_line_with_the_fix(monkeypatch, capsy
     monkeypatch.setattr(cli, "main", fail)
     code, err = run_console([], monkeypatch, capsys)
     assert code == 2
-    assert err.strip() == ("error: /mnt/card/out: Read-only file system; the file system is read-only: choose a "
-                           "location on a writable disk")
+    assert err.strip() == (
+        "error: /mnt/card/out: Read-only file system; the file system is read-only: choose a "
+        "location on a writable disk"
+    )
 
 
 def test_messages_are_printed_as_they_are_never_as_markup(tmp_path, monkeypatch, capsys):

@@ -9,31 +9,40 @@ import re
 import typing
 
 import pytest
+import register_backbone
 
-import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from backbones.gs.benchmark import BenchRasterConfig
 from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig
 from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig
 from mono_hdr_plugin.apps.cli import EvalConfig, main
 from mono_hdr_plugin.apps.export import ExportConfig
-from mono_hdr_plugin.core.registry import BACKBONES
 from mono_hdr_plugin.apps.render import RenderConfig
 from mono_hdr_plugin.apps.studio.commands import SynthConfig
-from mono_hdr_plugin.training.config import check_train_config, train_config_for
-from mono_hdr_plugin.core.validation import FlagError, check_flags, rules_of
 from mono_hdr_plugin.apps.viewer.command import ViewConfig
+from mono_hdr_plugin.core.registry import BACKBONES
+from mono_hdr_plugin.core.validation import FlagError, check_flags, rules_of
+from mono_hdr_plugin.training.config import check_train_config, train_config_for
 
 BUILT_IN = ("gs", "nerf", "voxel-grid")
 TRAIN_CONFIGS = (*BUILT_IN, "hdr-nerf")
 
 
 def default_configs() -> dict[str, object]:
-    configs = {name: train_config_for(BACKBONES.get(name).config_class)(backbone=BACKBONES.get(name).config_class())
-               for name in BUILT_IN}
+    configs = {
+        name: train_config_for(BACKBONES.get(name).config_class)(backbone=BACKBONES.get(name).config_class())
+        for name in BUILT_IN
+    }
     configs["hdr-nerf"] = train_config_for(register_backbone.VoxelGridConfig, "hdr-nerf")()  # a method's own flags
-    configs.update(eval=EvalConfig(checkpoint="x.pt"), render=RenderConfig(checkpoint="x.pt"), synth=SynthConfig(),
-                   view=ViewConfig(checkpoint="x.pt"), export=ExportConfig(checkpoint="x.pt"),
-                   bench_curves=BenchCurvesConfig(), bench_paper=BenchPaperConfig(), bench_raster=BenchRasterConfig())
+    configs.update(
+        eval=EvalConfig(checkpoint="x.pt"),
+        render=RenderConfig(checkpoint="x.pt"),
+        synth=SynthConfig(),
+        view=ViewConfig(checkpoint="x.pt"),
+        export=ExportConfig(checkpoint="x.pt"),
+        bench_curves=BenchCurvesConfig(),
+        bench_paper=BenchPaperConfig(),
+        bench_raster=BenchRasterConfig(),
+    )
     return configs
 
 
@@ -98,7 +107,9 @@ def test_every_numeric_flag_has_a_rule_and_refuses_nan_and_out_of_range(name, pa
         config = default_configs()[name]
         bad = int(bad) if integer else float(bad)
         owner_object = owner_of(config, path)  # object.__setattr__: some configs are frozen (ExecutorConfig)
-        object.__setattr__(owner_object, path[-1], tuple([bad] * max(1, len(default))) if isinstance(default, tuple) else bad)
+        object.__setattr__(
+            owner_object, path[-1], tuple([bad] * max(1, len(default))) if isinstance(default, tuple) else bad
+        )
         with pytest.raises(FlagError, match=rf"^--(\S+\.)?{flag_name} must be .*, got {re.escape(str(bad))}"):
             check(name, config)
 
@@ -110,30 +121,44 @@ def test_no_rule_names_a_field_that_is_not_there():
         while stack:
             current = stack.pop()
             classes.add(type(current))
-            stack += [getattr(current, f.name) for f in dataclasses.fields(current)
-                      if dataclasses.is_dataclass(getattr(current, f.name))]
+            stack += [
+                getattr(current, f.name)
+                for f in dataclasses.fields(current)
+                if dataclasses.is_dataclass(getattr(current, f.name))
+            ]
     for cls in classes:
         names = {f.name for f in dataclasses.fields(cls)}
         assert set(rules_of(cls)) <= names, f"{cls.__name__}: rules for {set(rules_of(cls)) - names}"
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["train", "voxel-grid", "--backbone.lr", "nan"], "--backbone.lr must be a positive number, got nan"),
-    (["train", "gs", "--backbone.lr-means", "inf"], "--backbone.lr-means must be a positive number, got inf"),
-    (["train", "nerf", "--backbone.field.grid-lr", "0"], r"--backbone.field.grid-lr must be a positive number, got 0.0"),
-    (["train", "voxel-grid", "--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
-    (["train", "voxel-grid", "--alpha", "nan"], r"--alpha must be a number >= 0, got nan"),
-    (["train", "voxel-grid", "--beta", "-0.1"], r"--beta must be a number >= 0, got -0.1"),
-    (["train", "voxel-grid", "--converter-lr", "-1e400"], "--converter-lr must be a positive number, got -inf"),
-    (["train", "voxel-grid", "--method", "hdr-nerf", "--unit-exposure-value", "1"],
-     r"--unit-exposure-value must be a number in \(0, 1\), got 1.0"),
-    (["train", "voxel-grid", "--fixed-exposure", "0"], "--fixed-exposure must be a positive number, got 0.0"),
-    (["train", "voxel-grid", "--max-seconds", "nan"], "--max-seconds must be a positive number, got nan"),
-    (["render", "--checkpoint", "x.pt", "--exposures", "1", "nan"], "--exposures must be a positive number, got nan"),
-    (["bench", "curves", "--eval-points", "0"], "--eval-points must be an integer >= 1, got 0"),
-    (["bench", "paper", "--executor", "cluster"], "--executor must be one of sequential, ray, got 'cluster'"),
-    (["bench", "raster", "--repeats", "0"], "--repeats must be an integer >= 1, got 0"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["train", "voxel-grid", "--backbone.lr", "nan"], "--backbone.lr must be a positive number, got nan"),
+        (["train", "gs", "--backbone.lr-means", "inf"], "--backbone.lr-means must be a positive number, got inf"),
+        (
+            ["train", "nerf", "--backbone.field.grid-lr", "0"],
+            r"--backbone.field.grid-lr must be a positive number, got 0.0",
+        ),
+        (["train", "voxel-grid", "--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
+        (["train", "voxel-grid", "--alpha", "nan"], r"--alpha must be a number >= 0, got nan"),
+        (["train", "voxel-grid", "--beta", "-0.1"], r"--beta must be a number >= 0, got -0.1"),
+        (["train", "voxel-grid", "--converter-lr", "-1e400"], "--converter-lr must be a positive number, got -inf"),
+        (
+            ["train", "voxel-grid", "--method", "hdr-nerf", "--unit-exposure-value", "1"],
+            r"--unit-exposure-value must be a number in \(0, 1\), got 1.0",
+        ),
+        (["train", "voxel-grid", "--fixed-exposure", "0"], "--fixed-exposure must be a positive number, got 0.0"),
+        (["train", "voxel-grid", "--max-seconds", "nan"], "--max-seconds must be a positive number, got nan"),
+        (
+            ["render", "--checkpoint", "x.pt", "--exposures", "1", "nan"],
+            "--exposures must be a positive number, got nan",
+        ),
+        (["bench", "curves", "--eval-points", "0"], "--eval-points must be an integer >= 1, got 0"),
+        (["bench", "paper", "--executor", "cluster"], "--executor must be one of sequential, ray, got 'cluster'"),
+        (["bench", "raster", "--repeats", "0"], "--repeats must be an integer >= 1, got 0"),
+    ],
+)
 def test_the_command_line_refuses_before_any_work_naming_the_flag(argv, message, tmp_path, monkeypatch):
     """As the issue found them: a NaN learning rate or loss weight, `--hidden 0`; spelled as typed."""
     import mono_hdr_plugin.data.loading as loading
@@ -143,4 +168,3 @@ def test_the_command_line_refuses_before_any_work_naming_the_flag(argv, message,
     with pytest.raises(FlagError, match=f"^{message}$"):
         main([*argv, "--scene", "demo"] if argv[0] == "train" else argv)
     assert list(tmp_path.iterdir()) == []
-

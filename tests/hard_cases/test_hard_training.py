@@ -9,9 +9,9 @@ import math
 
 import pytest
 import torch
+from hard_scenes import BACKBONES, EXPOSURES, make_scene, make_trainer, orbit_camera, photograph, train_and_check
 
 from backbones.gs import GaussianBackbone
-from hard_scenes import BACKBONES, EXPOSURES, make_scene, make_trainer, orbit_camera, photograph, train_and_check
 from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.io import read_exr
 
@@ -21,9 +21,18 @@ SLOW_STEPS = 400
 
 def on(default: str, applicable=BACKBONES):
     """Parametrise over backbones: `default` in the default suite, the others marked slow."""
-    return pytest.mark.parametrize("backbone,steps", [
-        pytest.param(name, STEPS if name == default else SLOW_STEPS, id=name,
-                     marks=() if name == default else pytest.mark.slow) for name in applicable])
+    return pytest.mark.parametrize(
+        "backbone,steps",
+        [
+            pytest.param(
+                name,
+                STEPS if name == default else SLOW_STEPS,
+                id=name,
+                marks=() if name == default else pytest.mark.slow,
+            )
+            for name in applicable
+        ],
+    )
 
 
 def saturated_fraction(scene) -> float:
@@ -87,8 +96,17 @@ def inside_camera(index: int, count: int, size: int) -> Camera:
     """Cameras inside the scene box [-1, 1]^3, looking through the origin, near plane close."""
     angle = 2 * math.pi * index / count
     eye = torch.tensor([0.5 * math.cos(angle), 0.5 * math.sin(angle), 0.2])
-    return Camera(look_at(eye, torch.zeros(3)), fx=1.1 * size, fy=1.1 * size, cx=size / 2, cy=size / 2,
-                  width=size, height=size, near=0.05, far=4.0)
+    return Camera(
+        look_at(eye, torch.zeros(3)),
+        fx=1.1 * size,
+        fy=1.1 * size,
+        cx=size / 2,
+        cy=size / 2,
+        width=size,
+        height=size,
+        near=0.05,
+        far=4.0,
+    )
 
 
 @on("nerf", applicable=("nerf", "voxel-grid"))
@@ -156,8 +174,10 @@ def test_pure_white_ldr_image(tmp_path, backbone, steps):
     train_and_check(make_trainer(tmp_path, backbone, scene, steps), steps)
 
 
-@pytest.mark.parametrize("method", ["hdr-nerf", pytest.param("hdr-gs", marks=pytest.mark.slow),
-                                    pytest.param("no-h2l", marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "method",
+    ["hdr-nerf", pytest.param("hdr-gs", marks=pytest.mark.slow), pytest.param("no-h2l", marks=pytest.mark.slow)],
+)
 @on("voxel-grid")
 def test_baselines_on_twelve_decades(tmp_path, backbone, steps, method):
     """The CRF baselines exponentiate log radiance: the widest HDR range must not overflow them."""

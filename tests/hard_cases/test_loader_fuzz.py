@@ -11,10 +11,10 @@ import warnings
 from pathlib import Path
 
 import pytest
+from hard_scenes import write_disk_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hard_scenes import write_disk_scene
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.errors import DatasetError
@@ -24,23 +24,93 @@ RUNS = [pytest.param(40, True, id="bounded"), pytest.param(400, False, id="long"
 
 # Values that have broken loaders: types JSON allows, numbers at and past the float range, text that
 # is a number to some parsers, unicode digits, surrogates, NUL, very long names.
-AWKWARD = [None, True, False, 0, -1, 1, 2**31, 10**30, 10**400, 0.0, -0.0, 1e-320, 1e308, math.nan, math.inf, -math.inf,
-           "", " ", "0.5", "nan", "inf", "1e999", "٣", "²", "\ud800", "a\x00b", "../../etc/passwd", "x" * 300, "☃.png",
-           [], {}, [1, 2, 3], [[0] * 4] * 4, {"frames": []}]
+AWKWARD = [
+    None,
+    True,
+    False,
+    0,
+    -1,
+    1,
+    2**31,
+    10**30,
+    10**400,
+    0.0,
+    -0.0,
+    1e-320,
+    1e308,
+    math.nan,
+    math.inf,
+    -math.inf,
+    "",
+    " ",
+    "0.5",
+    "nan",
+    "inf",
+    "1e999",
+    "٣",
+    "²",
+    "\ud800",
+    "a\x00b",
+    "../../etc/passwd",
+    "x" * 300,
+    "☃.png",
+    [],
+    {},
+    [1, 2, 3],
+    [[0] * 4] * 4,
+    {"frames": []},
+]
 # deep copies: a mutation must not change AWKWARD's lists and dicts for later examples (hypothesis
 # then sees different data for the same choices and reports a flaky strategy)
-scalars = (st.sampled_from(AWKWARD).map(copy.deepcopy) | st.none() | st.booleans() | st.integers()
-           | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=12))
-json_values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=4)
-                           | st.dictionaries(st.text(max_size=8), inner, max_size=4), max_leaves=12)
-tokens = (st.sampled_from(["nan", "inf", "-inf", "-1", "0", "1e999", "1e-999", "9" * 30, "", "☃", "1.5", "0x10",
-                           "PINHOLE", "SIMPLE_RADIAL", "#", "\t", "000_0.png"])
-          | st.text(max_size=6) | st.integers().map(str) | st.floats().map(repr))
+scalars = (
+    st.sampled_from(AWKWARD).map(copy.deepcopy)
+    | st.none()
+    | st.booleans()
+    | st.integers()
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12)
+)
+json_values = st.recursive(
+    scalars,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+    max_leaves=12,
+)
+tokens = (
+    st.sampled_from(
+        [
+            "nan",
+            "inf",
+            "-inf",
+            "-1",
+            "0",
+            "1e999",
+            "1e-999",
+            "9" * 30,
+            "",
+            "☃",
+            "1.5",
+            "0x10",
+            "PINHOLE",
+            "SIMPLE_RADIAL",
+            "#",
+            "\t",
+            "000_0.png",
+        ]
+    )
+    | st.text(max_size=6)
+    | st.integers().map(str)
+    | st.floats().map(repr)
+)
 
 
 def fuzz_settings(examples: int, fixed: bool):
-    return settings(max_examples=examples, deadline=None, derandomize=fixed, database=None,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    return settings(
+        max_examples=examples,
+        deadline=None,
+        derandomize=fixed,
+        database=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
 
 
 def loads_or_refuses(folder: Path) -> None:
@@ -73,8 +143,9 @@ class Dataset:
 def synthetic(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fuzz") / "synthetic"
     write_disk_scene(folder, size=8, views=4)
-    return Dataset(folder, ["transforms_train.json", "transforms_test.json", "exposure_train.json",
-                            "exposure_test.json"])
+    return Dataset(
+        folder, ["transforms_train.json", "transforms_test.json", "exposure_train.json", "exposure_test.json"]
+    )
 
 
 @pytest.fixture(scope="module")
@@ -90,8 +161,7 @@ def colmap(tmp_path_factory):
     reconstruction.write_text(str(model))
     for binary in model.glob("*.bin"):
         binary.unlink()
-    return Dataset(folder, ["sparse/0/cameras.txt", "sparse/0/images.txt", "sparse/0/points3D.txt",
-                            "exposures.json"])
+    return Dataset(folder, ["sparse/0/cameras.txt", "sparse/0/images.txt", "sparse/0/points3D.txt", "exposures.json"])
 
 
 def paths_of(document, prefix=()):
@@ -144,8 +214,21 @@ def mutate_text_model(data, text: str) -> str:
             lines.append(" ".join(data.draw(st.lists(tokens, max_size=12))))
             continue
         index = data.draw(st.integers(0, len(lines) - 1))
-        operation = data.draw(st.sampled_from(["token", "token", "token", "drop token", "add token", "drop line",
-                                               "duplicate line", "random line", "truncate"]))
+        operation = data.draw(
+            st.sampled_from(
+                [
+                    "token",
+                    "token",
+                    "token",
+                    "drop token",
+                    "add token",
+                    "drop line",
+                    "duplicate line",
+                    "random line",
+                    "truncate",
+                ]
+            )
+        )
         parts = lines[index].split(" ")
         if operation == "token":
             parts[data.draw(st.integers(0, len(parts) - 1))] = data.draw(tokens)

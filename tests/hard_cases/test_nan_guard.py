@@ -6,8 +6,8 @@ import math
 
 import pytest
 import torch
-
 from hard_scenes import finite_parameters, make_scene, make_trainer
+
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.training.trainer import TrainingDiverged, build_trainer
 

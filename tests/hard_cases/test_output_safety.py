@@ -12,13 +12,13 @@ import sys
 import time
 
 import pytest
-
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import environment, train_args, write_driver
 from hard_scenes import write_disk_scene
-from mono_hdr_plugin.training.checkpoints import load_checkpoint
+
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.data.outputs import RUN_FILE, OutputError, check_output, claim_output
+from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.training.config import TRAIN_OUTPUTS
 from mono_hdr_plugin.training.resume import ResumeMismatch
 
@@ -47,8 +47,11 @@ def run(tmp_path, trained):
 
 def snapshot(folder) -> dict[str, bytes]:
     """Every file below `folder` with its bytes (the claim file's state changes; it is left out)."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file() and p.name != RUN_FILE}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != RUN_FILE
+    }
 
 
 def dead_pid() -> int:
@@ -60,8 +63,11 @@ def dead_pid() -> int:
 # ------------------------------------------------------------------ an earlier run in --out
 def test_training_again_into_a_finished_run_is_refused_and_keeps_it(run, disk_scene):
     before = snapshot(run)
-    with pytest.raises(OutputError, match=r"holds the output of an earlier `mono-hdr train` \(checkpoints/, "
-                                          r"renders/, metrics.json\); pass --resume to continue it, pass --overwrite"):
+    with pytest.raises(
+        OutputError,
+        match=r"holds the output of an earlier `mono-hdr train` \(checkpoints/, "
+        r"renders/, metrics.json\); pass --resume to continue it, pass --overwrite",
+    ):
         main(train_args(disk_scene, run, 3))
     assert snapshot(run) == before
 
@@ -107,8 +113,11 @@ def test_overwrite_never_removes_the_inputs(run, tmp_path):
     data = run / "renders" / "scene"
     write_disk_scene(data)
     before = snapshot(run)
-    with pytest.raises(OutputError, match=r"--overwrite would remove .*renders, which holds the input .*scene; "
-                                          "nothing was removed"):
+    with pytest.raises(
+        OutputError,
+        match=r"--overwrite would remove .*renders, which holds the input .*scene; "
+        "nothing was removed",
+    ):
         main(train_args(data, run, 1, "--overwrite"))
     assert snapshot(run) == before
 
@@ -136,10 +145,15 @@ def test_out_that_is_a_file_is_one_clear_error_before_loading(tmp_path, disk_sce
 # ------------------------------------------------------------------ one writer at a time
 def test_second_run_is_refused_naming_the_first_ones_pid_and_host(tmp_path, disk_scene):
     out = tmp_path / "run"
-    with claim_output(out, "train", TRAIN_OUTPUTS):
-        with pytest.raises(OutputError, match=rf"is being written by `mono-hdr train` \(PID {os.getpid()} on host "
-                                              rf"{socket.gethostname()} since .*\); wait for it to finish"):
-            main(train_args(disk_scene, out, 1))
+    with (
+        claim_output(out, "train", TRAIN_OUTPUTS),
+        pytest.raises(
+            OutputError,
+            match=rf"is being written by `mono-hdr train` \(PID {os.getpid()} on host "
+            rf"{socket.gethostname()} since .*\); wait for it to finish",
+        ),
+    ):
+        main(train_args(disk_scene, out, 1))
     main(train_args(disk_scene, out, 1))  # released: the folder is free again
     assert json.loads((out / RUN_FILE).read_text())["state"] == "finished"
 
@@ -148,15 +162,25 @@ def test_two_trainings_started_together_one_refused_the_other_kept(tmp_path, dis
     """The issue's case with two real processes: the second exits 2 naming the first, whose results stay."""
     driver = write_driver(tmp_path)
     out = tmp_path / "run"
-    first = subprocess.Popen([sys.executable, str(driver), *train_args(disk_scene, out, 100_000)], env=environment(),
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    first = subprocess.Popen(
+        [sys.executable, str(driver), *train_args(disk_scene, out, 100_000)],
+        env=environment(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 120
         while not ((out / RUN_FILE).is_file() and '"running"' in (out / RUN_FILE).read_text()):
             assert first.poll() is None and time.monotonic() < deadline, first.stderr.read()
             time.sleep(0.05)
-        second = subprocess.run([sys.executable, str(driver), *train_args(disk_scene, out, 1, "--overwrite")],
-                                env=environment(), capture_output=True, text=True, timeout=300)
+        second = subprocess.run(
+            [sys.executable, str(driver), *train_args(disk_scene, out, 1, "--overwrite")],
+            env=environment(),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert second.returncode == 2
         assert f"is being written by `mono-hdr train` (PID {first.pid} on host {socket.gethostname()}" in second.stderr
         assert len(second.stderr.strip().splitlines()) == 1
@@ -171,8 +195,11 @@ def test_stale_claim_of_a_dead_process_is_taken_over_with_a_note(tmp_path, disk_
     out = tmp_path / "run"
     out.mkdir()
     pid = dead_pid()
-    (out / RUN_FILE).write_text(json.dumps({"command": "train", "pid": pid, "host": socket.gethostname(),
-                                            "started": time.time(), "state": "running"}))
+    (out / RUN_FILE).write_text(
+        json.dumps(
+            {"command": "train", "pid": pid, "host": socket.gethostname(), "started": time.time(), "state": "running"}
+        )
+    )
     main(train_args(disk_scene, out, 1))
     assert f"left claimed by `mono-hdr train` (PID {pid} on host {socket.gethostname()}" in capsys.readouterr().err
     assert load_checkpoint(out / "checkpoints" / "latest.pt")["step"] == 1
@@ -181,10 +208,16 @@ def test_stale_claim_of_a_dead_process_is_taken_over_with_a_note(tmp_path, disk_
 def test_claim_from_another_host_is_refused_naming_it(tmp_path, disk_scene):
     out = tmp_path / "run"
     out.mkdir()
-    (out / RUN_FILE).write_text(json.dumps({"command": "train", "pid": 4242, "host": "render-farm-7",
-                                            "started": time.time(), "state": "running"}))
-    with pytest.raises(OutputError, match=r"claimed by `mono-hdr train` \(PID 4242 on host render-farm-7.*another "
-                                          rf"machine.*delete .*{RUN_FILE}"):
+    (out / RUN_FILE).write_text(
+        json.dumps(
+            {"command": "train", "pid": 4242, "host": "render-farm-7", "started": time.time(), "state": "running"}
+        )
+    )
+    with pytest.raises(
+        OutputError,
+        match=r"claimed by `mono-hdr train` \(PID 4242 on host render-farm-7.*another "
+        rf"machine.*delete .*{RUN_FILE}",
+    ):
         main(train_args(disk_scene, out, 1))
 
 
@@ -204,9 +237,12 @@ def test_resume_on_other_data_is_refused_and_keeps_the_checkpoint(run, tmp_path)
     other = tmp_path / "other"
     write_disk_scene(other, views=4)
     before = snapshot(run)
-    with pytest.raises(ResumeMismatch, match=r"cannot resume from .*latest.pt: it was trained on scene 'scene' "
-                                             r"\(.*scene, 3 training views\), not on scene 'other' \(.*other, 2 "
-                                             r"training views\); changed: --data .*other \(was .*scene\)"):
+    with pytest.raises(
+        ResumeMismatch,
+        match=r"cannot resume from .*latest.pt: it was trained on scene 'scene' "
+        r"\(.*scene, 3 training views\), not on scene 'other' \(.*other, 2 "
+        r"training views\); changed: --data .*other \(was .*scene\)",
+    ):
         main(train_args(other, run, 5, "--resume"))
     assert snapshot(run) == before
 
@@ -218,11 +254,14 @@ def test_resume_on_a_moved_copy_of_the_same_data_continues(run, disk_scene, tmp_
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["step"] == 3
 
 
-@pytest.mark.parametrize("flags,message", [
-    (("--method", "hdr-gs"), "it was trained with --method mono, not hdr-gs"),
-    (("--hidden", "64"), "it was trained with --hidden 128, not 64"),
-    (("--exposure-index", "2"), "it was trained on scene 'scene'.*changed: --exposure-index 2 \\(was 1\\)"),
-])
+@pytest.mark.parametrize(
+    "flags,message",
+    [
+        (("--method", "hdr-gs"), "it was trained with --method mono, not hdr-gs"),
+        (("--hidden", "64"), "it was trained with --hidden 128, not 64"),
+        (("--exposure-index", "2"), "it was trained on scene 'scene'.*changed: --exposure-index 2 \\(was 1\\)"),
+    ],
+)
 def test_resume_with_another_model_or_data_is_one_line(run, disk_scene, flags, message, monkeypatch, capsys):
     from mono_hdr_plugin.apps import cli
 
@@ -239,8 +278,11 @@ def test_resume_with_another_model_or_data_is_one_line(run, disk_scene, flags, m
 
 
 def test_resume_with_a_changed_model_size_names_the_settings(run, disk_scene):
-    with pytest.raises(ResumeMismatch, match=r"its model does not fit the one these flags build \(changed: "
-                                             r"--backbone.resolution 12 \(was 20\)\)"):
+    with pytest.raises(
+        ResumeMismatch,
+        match=r"its model does not fit the one these flags build \(changed: "
+        r"--backbone.resolution 12 \(was 20\)\)",
+    ):
         main(train_args(disk_scene, run, 5, "--resume", "--backbone.resolution", "12"))
 
 
@@ -254,8 +296,11 @@ def test_resume_with_a_changed_learning_rate_continues_and_says_so(run, disk_sce
 def test_eval_into_the_training_folder_keeps_its_checkpoint(run):
     checkpoint = run / "checkpoints" / "latest.pt"
     before = checkpoint.read_bytes()
-    with pytest.raises(OutputError, match=r"holds the output of an earlier `mono-hdr train` \(metrics.json, "
-                                          r"renders/\); pass --overwrite"):
+    with pytest.raises(
+        OutputError,
+        match=r"holds the output of an earlier `mono-hdr train` \(metrics.json, "
+        r"renders/\); pass --overwrite",
+    ):
         main(["eval", "--checkpoint", str(checkpoint), "--out", str(run)])
     main(["eval", "--checkpoint", str(checkpoint), "--out", str(run), "--overwrite", "--no-save-renders"])
     assert checkpoint.read_bytes() == before and not (run / "renders").exists()
@@ -271,15 +316,16 @@ def test_render_adds_to_its_own_folder_and_never_writes_into_another(run, tmp_pa
     main(["render", "--checkpoint", str(checkpoint), "--out", str(out), "--max-views", "1", "--exposures", "8"])
     assert set(rendered) < {p.name for p in out.iterdir()}  # renders add up in their folder
     before = snapshot(run)
-    with pytest.raises(OutputError, match="holds the output of `mono-hdr train`; `mono-hdr render` writes into a "
-                                          "folder of its own"):
+    with pytest.raises(
+        OutputError, match="holds the output of `mono-hdr train`; `mono-hdr render` writes into a folder of its own"
+    ):
         main(["render", "--checkpoint", str(checkpoint), "--out", str(run)])
     assert snapshot(run) == before
 
 
 def test_synth_replaces_its_own_dataset_without_leaving_the_old_layout(tmp_path, tiny_demo, monkeypatch):
-    from mono_hdr_plugin.data.layouts import detect_layout
     from mono_hdr_plugin.apps.studio import dataset as studio_dataset
+    from mono_hdr_plugin.data.layouts import detect_layout
 
     monkeypatch.setattr(studio_dataset, "get_scene", lambda name: tiny_demo)
     out = tmp_path / "synth"
@@ -308,8 +354,11 @@ def test_process_data_overwrite_of_the_folder_holding_the_photos_is_refused(tmp_
         Image.new("RGB", (8, 8), (index * 40, 0, 0)).save(photos / f"IMG_{index}.jpg")
     (tmp_path / "parent" / "notes.txt").write_text("unrelated")
     before = snapshot(tmp_path / "parent")
-    with pytest.raises(OutputError, match=r"process-data --overwrite replaces .*parent, which holds the input "
-                                          r".*photos; nothing was removed"):
+    with pytest.raises(
+        OutputError,
+        match=r"process-data --overwrite replaces .*parent, which holds the input "
+        r".*photos; nothing was removed",
+    ):
         process_data(ProcessDataConfig(images=photos, out=tmp_path / "parent", overwrite=True))
     assert snapshot(tmp_path / "parent") == before
     other = tmp_path / "not-a-dataset"

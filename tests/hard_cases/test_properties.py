@@ -5,6 +5,7 @@ import math
 
 import pytest
 import torch
+from hard_scenes import backbone_config
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -12,7 +13,6 @@ from backbones.gs import render_gaussians
 from backbones.nerf import NerfBackbone
 from backbones.nerf.rendering import compositing_weights, make_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, sample_pdf, sample_stratified
-from hard_scenes import backbone_config, make_scene
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.core.converters import H2LColorConverter, L2HColorConverter, PerChannelCRF, PlainH2L, PlainL2H
@@ -36,9 +36,17 @@ def cameras(draw, max_size: int = 20):
     focal = draw(floats(2.0, 60.0))
     near = draw(floats(0.0, 2.0))
     far = near + draw(st.sampled_from([0.0, 1e-6, draw(floats(0.01, 10.0))]))
-    return Camera(look_at(eye, target), fx=focal, fy=focal * draw(floats(0.5, 2.0)),
-                  cx=draw(floats(0, width)), cy=draw(floats(0, height)), width=width, height=height,
-                  near=near, far=far)
+    return Camera(
+        look_at(eye, target),
+        fx=focal,
+        fy=focal * draw(floats(0.5, 2.0)),
+        cx=draw(floats(0, width)),
+        cy=draw(floats(0, height)),
+        width=width,
+        height=height,
+        near=near,
+        far=far,
+    )
 
 
 @st.composite
@@ -65,8 +73,15 @@ class TestRasteriserProperties:
     @given(camera=cameras(), scene=gaussians())
     def test_finite_outputs_and_gradients_alpha_in_unit_interval(self, backend, camera, scene):
         leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
-        image, alpha, projected = render_gaussians(leaves["means"], leaves["quats"], leaves["scales"],
-                                                   leaves["opacities"], leaves["values"], camera, backend=backend)
+        image, alpha, projected = render_gaussians(
+            leaves["means"],
+            leaves["quats"],
+            leaves["scales"],
+            leaves["opacities"],
+            leaves["values"],
+            camera,
+            backend=backend,
+        )
         assert image.shape == (camera.height, camera.width, 3) and alpha.shape == (camera.height, camera.width, 1)
         assert torch.isfinite(image).all() and torch.isfinite(alpha).all()
         assert ((alpha >= 0) & (alpha <= 1)).all()
@@ -201,8 +216,12 @@ class TestMetricProperties:
             assert math.isfinite(value) or (value == math.inf and "psnr" in key), (key, value)
 
     @PROPERTY
-    @given(seed=st.integers(0, 2**31 - 1), size=st.integers(11, 16), same=st.booleans(),
-           flat=st.sampled_from([None, 0.0, 1.0]))
+    @given(
+        seed=st.integers(0, 2**31 - 1),
+        size=st.integers(11, 16),
+        same=st.booleans(),
+        flat=st.sampled_from([None, 0.0, 1.0]),
+    )
     def test_ldr_psnr_ssim(self, seed, size, same, flat):
         gen = torch.Generator().manual_seed(seed)
         gt = torch.rand(size, size, 3, generator=gen) if flat is None else torch.full((size, size, 3), flat)

@@ -8,18 +8,17 @@ import math
 
 import pytest
 import torch
+from hard_scenes import backbone_config, make_scene
 
 from backbones.gs import GaussianBackbone, render_gaussians
 from backbones.nerf import NerfBackbone
 from backbones.nerf.rendering import compositing_weights, make_composite
 from backbones.nerf.sampling import ray_segments, sample_pdf
-from hard_scenes import backbone_config, make_scene
 from mono_hdr_plugin.core.cameras import Camera, look_at
-from mono_hdr_plugin.data.io import write_json
-from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.data.io import read_exr, write_exr
-from mono_hdr_plugin.methods.base import MethodOutput
 from mono_hdr_plugin.core.metrics import hdr_metrics, normalise_hdr, psnr
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.io import read_exr, write_exr, write_json
+from mono_hdr_plugin.methods.base import MethodOutput
 from mono_hdr_plugin.training.evaluation import save_view_renders
 
 BACKENDS = ("kernel", "torch")
@@ -28,14 +27,26 @@ SIZE = 24
 
 def front_camera(near: float = 0.1) -> Camera:
     """At (0, -4, 0) looking at the origin along +y (world z up)."""
-    return Camera(look_at(torch.tensor([0.0, -4.0, 0.0]), torch.zeros(3)), fx=SIZE, fy=SIZE, cx=SIZE / 2,
-                  cy=SIZE / 2, width=SIZE, height=SIZE, near=near)
+    return Camera(
+        look_at(torch.tensor([0.0, -4.0, 0.0]), torch.zeros(3)),
+        fx=SIZE,
+        fy=SIZE,
+        cx=SIZE / 2,
+        cy=SIZE / 2,
+        width=SIZE,
+        height=SIZE,
+        near=near,
+    )
 
 
 def one_gaussian(mean=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), scale=(0.3, 0.3, 0.3), opacity=0.8):
-    return {"means": torch.tensor([mean], dtype=torch.float32), "quats": torch.tensor([quat]),
-            "scales": torch.tensor([scale]), "opacities": torch.tensor([opacity]),
-            "values": torch.tensor([[0.2, 0.5, 0.9]])}
+    return {
+        "means": torch.tensor([mean], dtype=torch.float32),
+        "quats": torch.tensor([quat]),
+        "scales": torch.tensor([scale]),
+        "opacities": torch.tensor([opacity]),
+        "values": torch.tensor([[0.2, 0.5, 0.9]]),
+    }
 
 
 def stack(*gaussians):
@@ -45,8 +56,15 @@ def stack(*gaussians):
 def render_with_grads(gaussians: dict, camera: Camera, backend: str):
     """Render, backpropagate a pixel-weighted sum; returns image, alpha, projection, gradients."""
     leaves = {k: v.clone().requires_grad_(True) for k, v in gaussians.items()}
-    image, alpha, projected = render_gaussians(leaves["means"], leaves["quats"], leaves["scales"],
-                                               leaves["opacities"], leaves["values"], camera, backend=backend)
+    image, alpha, projected = render_gaussians(
+        leaves["means"],
+        leaves["quats"],
+        leaves["scales"],
+        leaves["opacities"],
+        leaves["values"],
+        camera,
+        backend=backend,
+    )
     weights = torch.rand(image.shape, generator=torch.Generator().manual_seed(0)) - 0.3
     loss = (image * weights).sum() + alpha.sum()
     if loss.requires_grad:  # the torch twin builds no graph when no pixel is touched
@@ -74,7 +92,8 @@ def test_gs_point_gaussian_gets_dilation_not_a_singular_covariance(backend):
 def test_gs_non_finite_footprint_is_culled(backend):
     """Scales of 1e20 overflow the 2D covariance (det inf or <= 0 after rounding): culled, no NaN."""
     image, alpha, projected, grads = render_with_grads(
-        stack(one_gaussian(scale=(1e20, 1e20, 1e20)), one_gaussian(mean=(0.2, 0.0, 0.1))), front_camera(), backend)
+        stack(one_gaussian(scale=(1e20, 1e20, 1e20)), one_gaussian(mean=(0.2, 0.0, 0.1))), front_camera(), backend
+    )
     assert_finite_render(image, alpha, grads)
     assert projected.radii[0] == 0 and projected.radii[1] > 0
     assert (grads["means"][0] == 0).all() and (grads["scales"][0] == 0).all()
@@ -127,8 +146,9 @@ def test_gs_backbone_scales_that_underflow_or_overflow_exp(log_scale):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_gs_alpha_is_clamped_at_0_99(backend):
-    image, alpha, _, grads = render_with_grads(one_gaussian(opacity=1.0, scale=(1.0, 1.0, 1.0)),
-                                                front_camera(), backend)
+    image, alpha, _, grads = render_with_grads(
+        one_gaussian(opacity=1.0, scale=(1.0, 1.0, 1.0)), front_camera(), backend
+    )
     assert_finite_render(image, alpha, grads)
     assert float(alpha.detach().max()) == pytest.approx(0.99, abs=1e-6)
 
@@ -143,14 +163,14 @@ def test_gs_alpha_below_1_over_255_is_skipped(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_gs_compositing_stops_when_transmittance_falls_below_1e_4(backend):
     """Ten opaque Gaussians in a row: blending stops before T < 1e-4; the ones behind get no gradient."""
-    layers = stack(*[one_gaussian(mean=(0.0, 0.2 * k, 0.0), opacity=1.0, scale=(1.0, 1.0, 1.0))
-                     for k in range(10)])
+    layers = stack(*[one_gaussian(mean=(0.0, 0.2 * k, 0.0), opacity=1.0, scale=(1.0, 1.0, 1.0)) for k in range(10)])
     image, alpha, _, grads = render_with_grads(layers, front_camera(), backend)
     assert_finite_render(image, alpha, grads)
     assert float(alpha.detach().max()) <= 1 - 1e-4 + 1e-6
     values = layers["values"].clone().requires_grad_(True)
-    centre, _, _ = render_gaussians(layers["means"], layers["quats"], layers["scales"], layers["opacities"],
-                                    values, front_camera(), backend=backend)
+    centre, _, _ = render_gaussians(
+        layers["means"], layers["quats"], layers["scales"], layers["opacities"], values, front_camera(), backend=backend
+    )
     centre[SIZE // 2, SIZE // 2].sum().backward()
     # alpha 0.99 each: the second layer would take T from 0.01 to 0.01 * 0.01, not above 1e-4 in
     # float32, so the first layer ends the pixel and the nine behind it get no gradient
@@ -159,8 +179,13 @@ def test_gs_compositing_stops_when_transmittance_falls_below_1e_4(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_gs_no_gaussians_at_all(backend):
-    empty = {"means": torch.zeros(0, 3), "quats": torch.zeros(0, 4), "scales": torch.zeros(0, 3),
-             "opacities": torch.zeros(0), "values": torch.zeros(0, 3)}
+    empty = {
+        "means": torch.zeros(0, 3),
+        "quats": torch.zeros(0, 4),
+        "scales": torch.zeros(0, 3),
+        "opacities": torch.zeros(0),
+        "values": torch.zeros(0, 3),
+    }
     image, alpha, _, grads = render_with_grads(empty, front_camera(), backend)
     assert_finite_render(image, alpha, grads)
     assert image.abs().max() == 0 and alpha.max() == 0
@@ -196,28 +221,56 @@ FIELDS = [("paper", "relu"), ("paper", "softplus"), ("cpu", "relu"), ("cpu", "so
 
 @pytest.mark.parametrize("field,activation", FIELDS)
 def test_nerf_empty_rays_that_miss_the_box(field, activation):
-    away = Camera(look_at(torch.tensor([0.0, -4.0, 0.0]), torch.tensor([0.0, -8.0, 0.0])), fx=8, fy=8, cx=4, cy=4,
-                  width=8, height=8, near=0.1, far=6.0)
+    away = Camera(
+        look_at(torch.tensor([0.0, -4.0, 0.0]), torch.tensor([0.0, -8.0, 0.0])),
+        fx=8,
+        fy=8,
+        cx=4,
+        cy=4,
+        width=8,
+        height=8,
+        near=0.1,
+        far=6.0,
+    )
     image, features = render_nerf_with_grads(nerf_backbone(field, activation), away)
     assert image.abs().max() == 0 and features.extras["alpha"].max() == 0
 
 
 @pytest.mark.parametrize("field,activation", FIELDS)
 def test_nerf_far_equals_near(field, activation):
-    camera = Camera(look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3)), fx=8, fy=8, cx=4, cy=4,
-                    width=8, height=8, near=2.5, far=2.5)
+    camera = Camera(
+        look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3)),
+        fx=8,
+        fy=8,
+        cx=4,
+        cy=4,
+        width=8,
+        height=8,
+        near=2.5,
+        far=2.5,
+    )
     image, features = render_nerf_with_grads(nerf_backbone(field, activation), camera)
     assert features.extras["alpha"].max() == 0
 
 
 @pytest.mark.parametrize("field,activation", FIELDS)
-@pytest.mark.parametrize("eye", [(3.0, 0.0, 0.0), (3.0, 1.0, 0.0), (3.0, 1.0, 1.0)],
-                         ids=["through-centre", "along-face", "along-edge"])
+@pytest.mark.parametrize(
+    "eye", [(3.0, 0.0, 0.0), (3.0, 1.0, 0.0), (3.0, 1.0, 1.0)], ids=["through-centre", "along-face", "along-edge"]
+)
 def test_nerf_rays_parallel_to_a_bounding_plane(field, activation, eye):
     """Odd-sized image: the central ray is exactly axis-aligned (direction components 0)."""
     eye = torch.tensor(eye)
-    camera = Camera(look_at(eye, eye - torch.tensor([1.0, 0.0, 0.0])), fx=7, fy=7, cx=3.5, cy=3.5,
-                    width=7, height=7, near=0.1, far=6.0)
+    camera = Camera(
+        look_at(eye, eye - torch.tensor([1.0, 0.0, 0.0])),
+        fx=7,
+        fy=7,
+        cx=3.5,
+        cy=3.5,
+        width=7,
+        height=7,
+        near=0.1,
+        far=6.0,
+    )
     _, directions = camera.rays()
     assert (directions[3, 3, 1:] == 0).all()
     render_nerf_with_grads(nerf_backbone(field, activation), camera)

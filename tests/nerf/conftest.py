@@ -2,16 +2,19 @@
 
 import pytest
 import torch
+from nerf_scenes import orbit_camera
 
 from mono_hdr_plugin.core.backbone import SceneInfo
-from nerf_scenes import orbit_camera
 
 
 @pytest.fixture
 def scene() -> SceneInfo:
     """The box [-1, 1]^3 seen by two cameras."""
-    return SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3),
-                     train_cameras=[orbit_camera(), orbit_camera(eye=(-3.0, 1.0, 0.5))])
+    return SceneInfo(
+        bounds_min=-torch.ones(3),
+        bounds_max=torch.ones(3),
+        train_cameras=[orbit_camera(), orbit_camera(eye=(-3.0, 1.0, 0.5))],
+    )
 
 
 @pytest.fixture(autouse=True)

@@ -5,13 +5,13 @@ from importlib.metadata import entry_points
 import pytest
 import torch
 import torch.nn.functional as F
+from nerf_scenes import orbit_camera, tiny_config
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfBackbone, NerfConfig
 from backbones.nerf.rendering import compositing_weights
 from mono_hdr_plugin.core.backbone import Backbone, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.core.registry import get_backbone
-from nerf_scenes import orbit_camera, tiny_config
 
 FIELDS = ("paper", "cpu")
 COLOR_ACTIVATIONS = {"sigmoid": torch.sigmoid, "softplus": F.softplus}
@@ -44,8 +44,7 @@ class TestNerfPresets:
 class TestNerfBackboneSetup:
     def test_registered_under_nerf(self):
         assert get_backbone("nerf") is NerfBackbone
-        assert any(ep.name == "nerf" and ep.load() is NerfBackbone
-                   for ep in entry_points(group="mono_hdr.backbones"))
+        assert any(ep.name == "nerf" and ep.load() is NerfBackbone for ep in entry_points(group="mono_hdr.backbones"))
 
     @pytest.mark.parametrize("preset,builds", [("cpu", 1), ("paper", 0)])
     def test_the_kernels_are_built_at_construction(self, scene, monkeypatch, preset, builds):
@@ -61,14 +60,18 @@ class TestNerfBackboneSetup:
         backbone = NerfBackbone(tiny_config("paper", render_chunk=123), scene)
         assert backbone.pixel_batch == 64 and backbone.render_chunk == 123
 
-    @pytest.mark.parametrize("bounds", [(torch.ones(3), torch.ones(3)), (torch.zeros(3), torch.tensor([1.0, math.nan, 1.0]))])
+    @pytest.mark.parametrize(
+        "bounds", [(torch.ones(3), torch.ones(3)), (torch.zeros(3), torch.tensor([1.0, math.nan, 1.0]))]
+    )
     def test_bad_bounds_name_the_argument(self, scene, bounds):
         bad = SceneInfo(bounds_min=bounds[0], bounds_max=bounds[1], train_cameras=scene.train_cameras)
         with pytest.raises(ValueError, match="bounds_min/bounds_max"):
             NerfBackbone(tiny_config("cpu"), bad)
 
-    @pytest.mark.parametrize("field,name,value", [("paper", "coarse_samples", 2), ("cpu", "max_samples_per_ray", 0),
-                                                  ("cpu", "min_step", 0.0)])
+    @pytest.mark.parametrize(
+        "field,name,value",
+        [("paper", "coarse_samples", 2), ("cpu", "max_samples_per_ray", 0), ("cpu", "min_step", 0.0)],
+    )
     def test_bad_sample_settings_raise(self, scene, field, name, value):
         config = tiny_config(field)
         setattr(config.field, name, value)
@@ -90,7 +93,7 @@ class TestNerfBackboneSetup:
         grid.set_run_length(1000)
         assert grid.learning_rate("nerf_grid", 0, 1e-2) == pytest.approx(1e-2)
         assert grid.learning_rate("nerf_grid", 1000, 1e-2) == pytest.approx(1e-3)
-        assert grid.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1 ** 0.5)
+        assert grid.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1**0.5)
 
     def test_a_new_run_length_rescales_the_schedule_and_keeps_the_model(self, scene):
         """--max-seconds tells the backbone a new run length while it trains."""
@@ -98,7 +101,7 @@ class TestNerfBackboneSetup:
         backbone.set_run_length(1000)
         before = {name: value.clone() for name, value in backbone.state_dict().items()}
         backbone.set_run_length(2000)
-        assert backbone.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1 ** 0.25)
+        assert backbone.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-2 * 0.1**0.25)
         assert backbone.learning_rate("nerf_mlp", 2000, 1e-2) == pytest.approx(1e-3)
         backbone.set_run_length(400)  # shorter than the steps already taken: stays at the final rate
         assert backbone.learning_rate("nerf_grid", 500, 1e-2) == pytest.approx(1e-3)
@@ -115,7 +118,9 @@ class TestNerfBackboneSetup:
 
     def test_cells_no_camera_sees_are_never_occupied(self):
         # One camera far out on +x with a narrow view (half a unit wide at the origin): the box's corners are unseen.
-        camera = Camera(look_at(torch.tensor([10.0, 0.0, 0.0]), torch.zeros(3)), 160, 160, 4, 4, 8, 8, near=0.5, far=20.0)
+        camera = Camera(
+            look_at(torch.tensor([10.0, 0.0, 0.0]), torch.zeros(3)), 160, 160, 4, 4, 8, 8, near=0.5, far=20.0
+        )
         scene = SceneInfo(bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=[camera])
         backbone = NerfBackbone(tiny_config("cpu"), scene)
         occupancy = backbone.occupancy
@@ -219,7 +224,7 @@ class TestChunkedRender:
             pixels = camera.pixel_centers()
             parts = []
             for start in range(0, pixels.shape[0], 17):
-                part = backbone.render_ldr_features(camera.with_pixels(pixels[start:start + 17]))
+                part = backbone.render_ldr_features(camera.with_pixels(pixels[start : start + 17]))
                 parts.append(part.composite(part.colors))
         torch.testing.assert_close(torch.cat(parts).reshape(10, 10, 3), whole_image)
 
@@ -279,8 +284,9 @@ def unpacked_render(backbone: NerfBackbone, camera: Camera) -> torch.Tensor:
     positions = backbone.normalise(origins[:, None] + t[..., None] * directions[:, None])
     placed = torch.zeros(t.numel(), dtype=torch.bool)
     placed[flat] = True
-    density, raw_color = backbone.grid_field(positions.reshape(-1, 3),
-                                             directions[:, None].expand_as(positions).reshape(-1, 3))
+    density, raw_color = backbone.grid_field(
+        positions.reshape(-1, 3), directions[:, None].expand_as(positions).reshape(-1, 3)
+    )
     density = torch.where(placed, density, torch.zeros_like(density)).reshape(t.shape)
     weights = compositing_weights(density, delta / backbone.scene_scale)
     colors = COLOR_ACTIVATIONS[backbone.config.field.color_activation](raw_color)
@@ -322,7 +328,8 @@ class TestPackedSamples:
         backbone = opaque_ball_backbone(scene)
         evaluated = []
         backbone.grid_field.density_mlp.register_forward_hook(
-            lambda module, inputs, output: evaluated.append((torch.is_grad_enabled(), inputs[0].shape[0])))
+            lambda module, inputs, output: evaluated.append((torch.is_grad_enabled(), inputs[0].shape[0]))
+        )
         camera = orbit_camera(size=12)
         torch.manual_seed(3)
         stopped = backbone.render_ldr_features(camera)
@@ -344,7 +351,8 @@ class TestPackedSamples:
             full = backbone.render_ldr_features(orbit_camera())
         assert dropped.colors.shape[0] < full.colors.shape[0]
         difference = full.composite(full.colors.new_ones(full.colors.shape)) - dropped.composite(
-            dropped.colors.new_ones(dropped.colors.shape))
+            dropped.colors.new_ones(dropped.colors.shape)
+        )
         # Each dropped sample had weight < 0.05: a pixel loses at most 16 of them.
         assert (difference >= 0).all() and (difference <= 16 * 0.05).all()
 
@@ -355,11 +363,12 @@ class TestOccupancySkipping:
         backbone.occupancy.update(lambda p: 5.0 * (p[:, 0] > 0.0).float(), decay=0.9, threshold=1.0)
         evaluated = []
         backbone.grid_field.density_mlp.register_forward_hook(
-            lambda module, inputs, output: evaluated.append(inputs[0].shape[0]))
+            lambda module, inputs, output: evaluated.append(inputs[0].shape[0])
+        )
         with torch.no_grad():
             features = backbone.render_ldr_features(orbit_camera())
         positions = features.extras["sample_distances"]
-        assert 0 < evaluated[0]
+        assert evaluated[0] > 0
         # Half the cube is empty: every marched sample lies in the x > 0 half.
         origins, directions = (x.reshape(-1, 3) for x in orbit_camera().rays())
         t, _, flat, _ = backbone.march(origins, directions, orbit_camera(), stochastic=False)
@@ -385,11 +394,21 @@ class TestOccupancySkipping:
         from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
-        config = NerfConfig(field=GridFieldConfig(levels=2, min_resolution=4, max_resolution=16, hidden_width=16,
-                                                  min_step=1 / 32, occupancy_resolution=16, occupancy_update_every=4,
-                                                  rays_per_step=256))
-        train = train_config_for(NerfConfig)(backbone=config, out=tmp_path, quiet=True, max_steps=150,
-                                             save_renders=False, checkpoint_every=10**9)
+        config = NerfConfig(
+            field=GridFieldConfig(
+                levels=2,
+                min_resolution=4,
+                max_resolution=16,
+                hidden_width=16,
+                min_step=1 / 32,
+                occupancy_resolution=16,
+                occupancy_update_every=4,
+                rays_per_step=256,
+            )
+        )
+        train = train_config_for(NerfConfig)(
+            backbone=config, out=tmp_path, quiet=True, max_steps=150, save_renders=False, checkpoint_every=10**9
+        )
         trainer = Trainer(train, "nerf", voxel_scene)
         while trainer.step < train.max_steps:
             trainer.train_step()
@@ -397,8 +416,9 @@ class TestOccupancySkipping:
         occupancy = backbone.occupancy
         assert 0 < occupancy.occupied.sum() < occupancy.seen.sum()  # it does skip space
         # Dense reference: every cell occupied, steps 16x finer, every marched sample shaded.
-        dense_field = dataclasses.replace(config.field, max_samples_per_ray=256, min_step=config.field.min_step / 16,
-                                          importance_samples=0)
+        dense_field = dataclasses.replace(
+            config.field, max_samples_per_ray=256, min_step=config.field.min_step / 16, importance_samples=0
+        )
         dense = NerfBackbone(dataclasses.replace(config, field=dense_field), voxel_scene.scene_info())
         dense.load_state_dict(backbone.state_dict())
         dense.occupancy.occupied.fill_(True)
@@ -428,7 +448,8 @@ class TestRenderMemoryBound:
         render = backbone.render_ldr_features
         backbone.render_ldr_features = lambda camera: rays.append(camera.pixels.shape[0]) or render(camera)
         backbone.grid_field.density_mlp.register_forward_hook(
-            lambda module, inputs, output: samples.append(inputs[0].shape[0]))
+            lambda module, inputs, output: samples.append(inputs[0].shape[0])
+        )
         output = pipeline.render(orbit_camera(size=30), 1.0)
         assert output.ldr.shape == (30, 30, 3)
         assert sum(rays) == 900 and max(rays) <= 50

@@ -3,8 +3,15 @@ import math
 import torch
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig
-from backbones.nerf.fields import (GridRadianceField, MlpRadianceField, OccupancyGrid, activate_density,
-                                   encoded_size, grid_resolutions, positional_encoding)
+from backbones.nerf.fields import (
+    GridRadianceField,
+    MlpRadianceField,
+    OccupancyGrid,
+    activate_density,
+    encoded_size,
+    grid_resolutions,
+    positional_encoding,
+)
 from backbones.nerf.reference import grid_encode_reference
 
 
@@ -72,8 +79,9 @@ class TestGridRadianceField:
         with torch.no_grad():
             field.table.normal_()
         positions = torch.rand(64, 3) * 2 - 1
-        torch.testing.assert_close(field.encode(positions),
-                                   grid_encode_reference(positions, field.table, field.resolutions, field.offsets))
+        torch.testing.assert_close(
+            field.encode(positions), grid_encode_reference(positions, field.table, field.resolutions, field.offsets)
+        )
 
     def test_shapes_and_gradients_reach_every_level(self):
         field = GridRadianceField(GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden_width=16))
@@ -82,7 +90,7 @@ class TestGridRadianceField:
         assert density.shape == (40,) and raw_color.shape == (40, 3)
         (density.sum() + raw_color.sum()).backward()
         for offset, resolution in zip(field.offsets.tolist(), field.resolutions.tolist()):
-            assert field.table.grad[offset:offset + resolution**3].abs().sum() > 0
+            assert field.table.grad[offset : offset + resolution**3].abs().sum() > 0
         assert field.density(torch.zeros(3, 3)).shape == (3,)
 
 

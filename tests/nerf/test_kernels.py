@@ -36,8 +36,9 @@ class TestGridEncode:
         res, offsets, rows = levels([2])
         table = torch.arange(8, dtype=torch.float32)[:, None]  # vertex (x, y, z) holds x + 2 y + 4 z
         positions = torch.tensor([[-1.0, -1.0, -1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
-        torch.testing.assert_close(grid_encode(positions, table, res, offsets)[:, 0],
-                                   torch.tensor([0.0, 1.0, 6.0, 3.5]))
+        torch.testing.assert_close(
+            grid_encode(positions, table, res, offsets)[:, 0], torch.tensor([0.0, 1.0, 6.0, 3.5])
+        )
 
     def test_gradcheck_float64(self):
         res, offsets, rows = levels([2, 3])
@@ -90,8 +91,9 @@ class TestMarchRays:
         occupancy = torch.zeros(8, 8, 8, dtype=torch.bool)
         occupancy[2:5, 3:6, 1:4] = True
         t_near, t_far = ray_segments(origins, directions, 0.0, 20.0, (-torch.ones(3), torch.ones(3)))
-        t, delta, counts = march_rays(origins, directions, t_near, t_far, occupancy, torch.zeros(3), 1.0, 0.01, 64,
-                                      torch.rand(500, 64))
+        t, delta, counts = march_rays(
+            origins, directions, t_near, t_far, occupancy, torch.zeros(3), 1.0, 0.01, 64, torch.rand(500, 64)
+        )
         real = torch.arange(64) < counts[:, None]
         points = origins[:, None] + t[..., None] * directions[:, None]
         cells = ((points[real] + 1) * 4).floor().long().clamp(0, 7)
@@ -106,8 +108,18 @@ class TestMarchRays:
         origins, directions = torch.tensor([[-3.0, 0.01, 0.01]]), torch.tensor([[1.0, 0.0, 0.0]])
         occupancy = torch.ones(4, 4, 4, dtype=torch.bool)
         for cap, expected in ((64, 20), (8, 8)):
-            t, delta, counts = march_rays(origins, directions, torch.tensor([2.0]), torch.tensor([4.0]), occupancy,
-                                          torch.zeros(3), 1.0, 0.1, cap, None)
+            t, delta, counts = march_rays(
+                origins,
+                directions,
+                torch.tensor([2.0]),
+                torch.tensor([4.0]),
+                occupancy,
+                torch.zeros(3),
+                1.0,
+                0.1,
+                cap,
+                None,
+            )
             assert counts.item() == expected
             torch.testing.assert_close(delta[0, :expected], torch.full((expected,), 2.0 / expected))
             torch.testing.assert_close(t[0, :expected], 2.0 + (torch.arange(expected) + 0.5) * 2.0 / expected)
@@ -115,17 +127,47 @@ class TestMarchRays:
     def test_empty_grid_and_missing_rays_give_no_samples(self):
         origins, directions = random_rays(100, seed=4)
         t_near, t_far = ray_segments(origins, directions, 0.0, 20.0, (-torch.ones(3), torch.ones(3)))
-        _, _, counts = march_rays(origins, directions, t_near, t_far, torch.zeros(4, 4, 4, dtype=torch.bool),
-                                  torch.zeros(3), 1.0, 0.01, 16, None)
+        _, _, counts = march_rays(
+            origins,
+            directions,
+            t_near,
+            t_far,
+            torch.zeros(4, 4, 4, dtype=torch.bool),
+            torch.zeros(3),
+            1.0,
+            0.01,
+            16,
+            None,
+        )
         assert counts.sum() == 0
-        _, _, counts = march_rays(origins, directions, t_near, t_near, torch.ones(4, 4, 4, dtype=torch.bool),
-                                  torch.zeros(3), 1.0, 0.01, 16, None)
+        _, _, counts = march_rays(
+            origins,
+            directions,
+            t_near,
+            t_near,
+            torch.ones(4, 4, 4, dtype=torch.bool),
+            torch.zeros(3),
+            1.0,
+            0.01,
+            16,
+            None,
+        )
         assert counts.sum() == 0
 
     def test_ray_along_a_cell_plane_is_finite(self):
         # Runs exactly on the plane y = 0 between two cell layers, parallel to two axes.
         origins, directions = torch.tensor([[-3.0, 0.0, 0.5]]), torch.tensor([[1.0, 0.0, 0.0]])
-        t, delta, counts = march_rays(origins, directions, torch.tensor([2.0]), torch.tensor([4.0]),
-                                      torch.ones(4, 4, 4, dtype=torch.bool), torch.zeros(3), 1.0, 0.25, 16, None)
+        t, delta, counts = march_rays(
+            origins,
+            directions,
+            torch.tensor([2.0]),
+            torch.tensor([4.0]),
+            torch.ones(4, 4, 4, dtype=torch.bool),
+            torch.zeros(3),
+            1.0,
+            0.25,
+            16,
+            None,
+        )
         assert counts.item() == 8 and torch.isfinite(t).all() and torch.isfinite(delta).all()
         assert math.isclose(delta.sum().item(), 2.0, rel_tol=1e-5)

@@ -106,24 +106,28 @@ class TestMakeComposite:
 class TestMakePackedComposite:
     def test_sums_samples_per_ray(self):
         weights = torch.tensor([0.5, 0.25, 1.0])
-        composite = make_packed_composite(weights, torch.tensor([0, 0, 2]), torch.tensor([0.75, 0.0, 1.0]),
-                                          (3,), torch.zeros(3))
+        composite = make_packed_composite(
+            weights, torch.tensor([0, 0, 2]), torch.tensor([0.75, 0.0, 1.0]), (3,), torch.zeros(3)
+        )
         values = torch.tensor([[1.0], [2.0], [3.0]])
         torch.testing.assert_close(composite(values), torch.tensor([[1.0], [0.0], [3.0]]))
 
     def test_background_behind_accumulation(self):
-        composite = make_packed_composite(torch.tensor([0.5]), torch.tensor([1]), torch.tensor([0.0, 0.5]),
-                                          (1, 2), torch.ones(3))
+        composite = make_packed_composite(
+            torch.tensor([0.5]), torch.tensor([1]), torch.tensor([0.0, 0.5]), (1, 2), torch.ones(3)
+        )
         image = composite(torch.zeros(1, 6))
         torch.testing.assert_close(image, torch.tensor([[[1.0] * 6, [0.5] * 6]]))
 
     def test_no_samples(self):
-        composite = make_packed_composite(torch.zeros(0), torch.zeros(0, dtype=torch.long), torch.zeros(4),
-                                          (2, 2), torch.zeros(3))
+        composite = make_packed_composite(
+            torch.zeros(0), torch.zeros(0, dtype=torch.long), torch.zeros(4), (2, 2), torch.zeros(3)
+        )
         torch.testing.assert_close(composite(torch.zeros(0, 6)), torch.zeros(2, 2, 6))
 
     def test_wrong_value_shape_raises(self):
-        composite = make_packed_composite(torch.rand(5), torch.zeros(5, dtype=torch.long), torch.ones(1),
-                                          (1,), torch.zeros(3))
+        composite = make_packed_composite(
+            torch.rand(5), torch.zeros(5, dtype=torch.long), torch.ones(1), (1,), torch.zeros(3)
+        )
         with pytest.raises(ValueError, match="packed samples"):
             composite(torch.rand(4, 3))

@@ -48,8 +48,7 @@ class TestRaySegments:
         torch.testing.assert_close(t_far, torch.full((2,), 6.0))
 
     def test_clipped_to_box(self):
-        t_near, t_far = ray_segments(torch.tensor([[-3.0, 0.0, 0.0]]), torch.tensor([[1.0, 0.0, 0.0]]),
-                                     0.5, 3.0, BOX)
+        t_near, t_far = ray_segments(torch.tensor([[-3.0, 0.0, 0.0]]), torch.tensor([[1.0, 0.0, 0.0]]), 0.5, 3.0, BOX)
         torch.testing.assert_close(t_near, torch.tensor([2.0]))
         torch.testing.assert_close(t_far, torch.tensor([3.0]))
 
@@ -136,8 +135,9 @@ class TestResampleOccupied:
     def test_deltas_add_up_to_the_occupied_length_after_the_first_sample(self):
         t = torch.tensor([[1.25, 1.75, 3.25, 3.75]])
         delta = torch.full((1, 4), 0.5)
-        new_t, new_delta = resample_occupied(t, delta, torch.full((1, 4), 0.5), torch.zeros(1, 4), 8,
-                                             deterministic=True)
+        new_t, new_delta = resample_occupied(
+            t, delta, torch.full((1, 4), 0.5), torch.zeros(1, 4), 8, deterministic=True
+        )
         # Zero weights: evenly spread over the occupied length 2 from its start, 0.25 each.
         torch.testing.assert_close(new_delta, torch.full((1, 8), 0.25))
         # Occupied length 2 in two pieces: evenly spaced quantiles map across the gap [2, 3].
@@ -148,11 +148,18 @@ class TestResampleOccupied:
     def test_jittered_marching_positions_are_respected(self):
         # A sample jittered to 10 % of its bin: the bin still starts at t - 0.1 * delta.
         t = torch.tensor([[2.05]])
-        new_t, _ = resample_occupied(t, torch.tensor([[0.5]]), torch.tensor([[0.1]]), torch.ones(1, 1), 3,
-                                     deterministic=True)
+        new_t, _ = resample_occupied(
+            t, torch.tensor([[0.5]]), torch.tensor([[0.1]]), torch.ones(1, 1), 3, deterministic=True
+        )
         torch.testing.assert_close(new_t[0], torch.tensor([2.0, 2.0 + 1 / 6, 2.0 + 2 / 6]))
 
     def test_rays_without_occupied_length_get_zero_deltas(self):
-        new_t, new_delta = resample_occupied(torch.full((2, 3), 5.0), torch.zeros(2, 3), torch.full((2, 3), 0.5),
-                                             torch.zeros(2, 3), 4, deterministic=False)
+        new_t, new_delta = resample_occupied(
+            torch.full((2, 3), 5.0),
+            torch.zeros(2, 3),
+            torch.full((2, 3), 0.5),
+            torch.zeros(2, 3),
+            4,
+            deterministic=False,
+        )
         assert torch.isfinite(new_t).all() and torch.equal(new_delta, torch.zeros(2, 4))

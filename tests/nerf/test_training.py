@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+from nerf_scenes import tiny_config
 
 from backbones.nerf import NerfBackbone, NerfConfig
 from mono_hdr_plugin.data.config import DataConfig
@@ -11,13 +12,17 @@ from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
-from nerf_scenes import tiny_config
 
 
 def nerf_trainer(tmp_path, scene, field: str, method: str) -> Trainer:
     config = train_config_for(type(tiny_config(field)), method)(
-        backbone=tiny_config(field), out=tmp_path / "run", quiet=True, save_renders=False,
-        checkpoint_every=10**9, max_steps=2)
+        backbone=tiny_config(field),
+        out=tmp_path / "run",
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_steps=2,
+    )
     return Trainer(config, "nerf", scene)
 
 
@@ -61,9 +66,15 @@ class TestCheckpoint:
 class TestCpuFieldLearnsTheDemoScene:
     def test_hdr_psnr_rises(self, tmp_path):
         scene = load_scene(DataConfig(scene="demo"))
-        config = train_config_for(NerfConfig)(backbone=NerfBackbone.presets()["cpu"], out=tmp_path / "run", quiet=True,
-                                              save_renders=False, checkpoint_every=10**9, max_steps=400,
-                                              max_eval_views=2)
+        config = train_config_for(NerfConfig)(
+            backbone=NerfBackbone.presets()["cpu"],
+            out=tmp_path / "run",
+            quiet=True,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_steps=400,
+            max_eval_views=2,
+        )
         trainer = Trainer(config, "nerf", scene)
         for _ in range(50):
             trainer.train_step()
@@ -82,6 +93,13 @@ def test_cpu_preset_beats_the_old_fast_field_in_200_steps(tmp_path):
     import register_backbone
 
     scene = register_backbone.make_capture(size=16, views=8)
-    config = train_config_for(NerfConfig)(backbone=NerfBackbone.presets()["cpu"], out=tmp_path / "run", quiet=True,
-                                          max_steps=200, save_renders=False, checkpoint_every=10**9, seed=3)
+    config = train_config_for(NerfConfig)(
+        backbone=NerfBackbone.presets()["cpu"],
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=200,
+        save_renders=False,
+        checkpoint_every=10**9,
+        seed=3,
+    )
     assert Trainer(config, "nerf", scene).train()["hdr_psnr"] > 18.0

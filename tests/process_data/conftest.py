@@ -3,7 +3,6 @@
 from fractions import Fraction
 
 import pytest
-
 from process_data_photos import PhotoShoot, noise_texture, shoot, textured_scene
 
 

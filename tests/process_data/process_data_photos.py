@@ -13,12 +13,23 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import render_scene
-from mono_hdr_plugin.apps.studio.scene import (CameraRig, StudioScene, box, diffuse, noise_image, panel, place, rgb, rotate,
-                                          scale, translate)
+from mono_hdr_plugin.apps.studio.scene import (
+    CameraRig,
+    StudioScene,
+    box,
+    diffuse,
+    noise_image,
+    panel,
+    place,
+    rgb,
+    rotate,
+    scale,
+    translate,
+)
 from mono_hdr_plugin.apps.studio.shoot import save_jpeg
+from mono_hdr_plugin.core.cameras import Camera
 
 
 def noise_texture(path: Path, size: int = 512, seed: int = 0) -> Path:
@@ -42,11 +53,21 @@ def textured_content(texture: Path) -> dict:
 
 def textured_scene(texture: Path, views: int, resolution: int) -> StudioScene:
     return StudioScene(
-        name=f"process-data-{views}x{resolution}", description="noise-textured objects under a uniform sky",
+        name=f"process-data-{views}x{resolution}",
+        description="noise-textured objects under a uniform sky",
         content=lambda: textured_content(texture),
-        rig=CameraRig(target=(0.0, 0.3, 0.4), radius=3.2, azimuth_deg=(-150.0, -30.0), elevation_deg=(20.0, 40.0),
-                      fov_deg=55.0, views=views),
-        resolution=(resolution, resolution), spp=9, max_depth=2)
+        rig=CameraRig(
+            target=(0.0, 0.3, 0.4),
+            radius=3.2,
+            azimuth_deg=(-150.0, -30.0),
+            elevation_deg=(20.0, 40.0),
+            fov_deg=55.0,
+            views=views,
+        ),
+        resolution=(resolution, resolution),
+        spp=9,
+        max_depth=2,
+    )
 
 
 @dataclass
@@ -70,11 +91,9 @@ def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoS
         exposure = exposures[index % len(exposures)]
         # The scene's radiance is scaled for exposures around 2 s; photographing at 1.5 s times
         # the ratio to the first EXIF time keeps the photos well exposed whatever EXIF says.
-        pixels = capture(render.radiance[index], 1.5 * float(exposure / exposures[0]), scene.effects,
-                         scene.capture)
+        pixels = capture(render.radiance[index], 1.5 * float(exposure / exposures[0]), scene.effects, scene.capture)
         name = f"IMG_{index + 1:04d}.jpg"
-        save_jpeg(folder / name, pixels, exposure=exposure, iso=100, f_number=Fraction(28, 10),
-                  focal_35mm=focal_35mm)
+        save_jpeg(folder / name, pixels, exposure=exposure, iso=100, f_number=Fraction(28, 10), focal_35mm=focal_35mm)
         names.append(name)
         times.append(float(exposure))
     return PhotoShoot(folder, cameras, times, names)

@@ -27,13 +27,18 @@ def write_dng(path: Path, linear: np.ndarray, exposure: Fraction | None = None, 
     mosaic[0::2, 1::2] = linear[0::2, 1::2, 1]
     mosaic[1::2, 0::2] = linear[1::2, 0::2, 1]
     mosaic[1::2, 1::2] = linear[1::2, 1::2, 2]
-    tags = [(50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
-            (50708, "s", 0, "Mono-HDR TestCam", True),  # UniqueCameraModel
-            (33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),  # CFA repeat, RGGB
-            (50714, "H", 1, BLACK, True), (50717, "H", 1, WHITE, True),
-            (50721, "2i", 9, _rationals(XYZ_TO_SRGB.ravel()), True), (50778, "H", 1, 21, True),  # D65
-            (50728, "2I", 3, _rationals((1, 1, 1)), True),  # AsShotNeutral: no white balance
-            (33437, "2I", 1, _rationals([f_number], 10), True)]
+    tags = [
+        (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
+        (50708, "s", 0, "Mono-HDR TestCam", True),  # UniqueCameraModel
+        (33421, "H", 2, (2, 2), True),
+        (33422, "B", 4, (0, 1, 1, 2), True),  # CFA repeat, RGGB
+        (50714, "H", 1, BLACK, True),
+        (50717, "H", 1, WHITE, True),
+        (50721, "2i", 9, _rationals(XYZ_TO_SRGB.ravel()), True),
+        (50778, "H", 1, 21, True),  # D65
+        (50728, "2I", 3, _rationals((1, 1, 1)), True),  # AsShotNeutral: no white balance
+        (33437, "2I", 1, _rationals([f_number], 10), True),
+    ]
     if exposure is not None:
         tags.append((33434, "2I", 1, (exposure.numerator, exposure.denominator), True))
     pixels = np.round(mosaic * (WHITE - BLACK) + BLACK).astype(np.uint16)

@@ -10,10 +10,18 @@ from PIL import Image
 
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.photos import brackets
-from mono_hdr_plugin.data.photos.brackets import (BracketCandidate, BracketTolerances, aligned_members,
-                                             brightness_order, detect_brackets, dynamic_range_stops,
-                                             estimate_relative_exposures, merge_bracket, recover_response,
-                                             response_sample)
+from mono_hdr_plugin.data.photos.brackets import (
+    BracketCandidate,
+    BracketTolerances,
+    aligned_members,
+    brightness_order,
+    detect_brackets,
+    dynamic_range_stops,
+    estimate_relative_exposures,
+    merge_bracket,
+    recover_response,
+    response_sample,
+)
 
 SCALE = 10.0
 """Scene scale of the synthetic poses: the default 3 % position tolerance is 0.3 units."""
@@ -41,11 +49,16 @@ class Walk:
         for index, exposure in enumerate(exposures):
             is_placed = placed is None or placed[index]
             centre = np.array([SCALE * math.cos(math.radians(angle)), SCALE * math.sin(math.radians(angle)), 0.0])
-            self.photos.append(BracketCandidate(
-                name=f"IMG_{len(self.photos) + 1}.jpg", exposure=exposure,
-                timestamp=self.clock if timed else None, auto_bracket=camera_flag,
-                center=centre + np.array([jitter * index, 0.0, 0.0]) if is_placed else None,
-                rotation=rotation_z(angle + jitter * index) if is_placed else None))
+            self.photos.append(
+                BracketCandidate(
+                    name=f"IMG_{len(self.photos) + 1}.jpg",
+                    exposure=exposure,
+                    timestamp=self.clock if timed else None,
+                    auto_bracket=camera_flag,
+                    center=centre + np.array([jitter * index, 0.0, 0.0]) if is_placed else None,
+                    rotation=rotation_z(angle + jitter * index) if is_placed else None,
+                )
+            )
             self.clock += gap + (exposure or 0.0)
         self.clock += 5.0
         return list(range(first, len(self.photos)))
@@ -112,7 +125,9 @@ class TestDetectBrackets:
     def test_camera_bracket_with_equal_exposures_names_the_files(self):
         walk = Walk()
         walk.stop([1 / 60] * 3, camera_flag=True)
-        with pytest.raises(DatasetError, match=r"IMG_1.jpg, IMG_2.jpg, IMG_3.jpg: .*all have the exposure.*--no-brackets"):
+        with pytest.raises(
+            DatasetError, match=r"IMG_1.jpg, IMG_2.jpg, IMG_3.jpg: .*all have the exposure.*--no-brackets"
+        ):
             detect_brackets(walk.photos, SCALE)
 
     def test_unknown_exposures_stay_one_set(self):
@@ -128,7 +143,7 @@ def linear_scene(height: int = 48, width: int = 64, stops_range: float = 14.0, s
     base = 2.0 ** (stops_range * (0.8 * xx + 0.2 * yy) - stops_range)
     tint = 0.7 + 0.3 * rng.random((1, 1, 3))
     scene = base[..., None] * tint
-    scene[height // 3: height // 3 + 4, width // 2: width // 2 + 4] = 1.0  # the lamp
+    scene[height // 3 : height // 3 + 4, width // 2 : width // 2 + 4] = 1.0  # the lamp
     return scene.astype(np.float64)
 
 
@@ -151,8 +166,10 @@ def gamma_response(gamma: float = 2.2) -> np.ndarray:
 
 def mulaw_psnr(pred: np.ndarray, truth: np.ndarray) -> float:
     """mu-law PSNR, each image divided by its own maximum (the official GS evaluation)."""
+
     def tone(x):
         return np.log1p(5000 * np.clip(x / x.max(), 0, 1)) / math.log1p(5000)
+
     return float(-10 * np.log10(np.mean((tone(pred) - tone(truth)) ** 2)))
 
 
@@ -262,7 +279,9 @@ class TestAlignment:
 
         def noisy_photo(exposure):
             signal = np.clip(scene * exposure, 0.0, 1.0)
-            return jpeg(photograph(np.clip(signal + rng.normal(0, 0.004, signal.shape) * np.sqrt(signal + 1e-3), 0, 1), 1.0))
+            return jpeg(
+                photograph(np.clip(signal + rng.normal(0, 0.004, signal.shape) * np.sqrt(signal + 1e-3), 0, 1), 1.0)
+            )
 
         assert aligned_members([noisy_photo(0.02), noisy_photo(0.16)], [0, 1], 1, gamma_response()) == [0, 1]
 

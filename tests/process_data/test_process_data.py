@@ -9,22 +9,26 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from process_data_photos import shoot, textured_scene
 
 from mono_hdr_plugin.apps.cli import main as cli_main
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.process_data.exposures import (
+    assign_exposures,
+    exposure_warnings,
+    read_exposure_csv,
+    relative_exposure,
+)
+from mono_hdr_plugin.apps.process_data.photos import check_one_camera, find_photos, load_photo
+from mono_hdr_plugin.apps.process_data.records import PhotoRecord
+from mono_hdr_plugin.apps.process_data.sfm import check_registered
+from mono_hdr_plugin.apps.studio.alignment import similarity
+from mono_hdr_plugin.apps.studio.shoot import save_jpeg
+from mono_hdr_plugin.core.validation import FlagError
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.data.photos.exif import PhotoExif, read_exif
-from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.apps.process_data.exposures import (assign_exposures, exposure_warnings, read_exposure_csv,
-                                                         relative_exposure)
-from mono_hdr_plugin.apps.process_data.photos import check_one_camera, find_photos, load_photo
-from mono_hdr_plugin.apps.process_data.records import PhotoRecord
-from mono_hdr_plugin.apps.process_data.sfm import check_registered
-from mono_hdr_plugin.apps.studio.shoot import save_jpeg
-from mono_hdr_plugin.apps.studio.alignment import similarity
-from mono_hdr_plugin.core.validation import FlagError
-from process_data_photos import shoot, textured_scene
 
 ROTATION_LIMIT_DEG = 1.0
 POSITION_LIMIT = 0.01
@@ -98,8 +102,11 @@ class TestProcessData:
         assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # scratch folder removed
 
     def test_pinhole_model_is_kept(self, small_shoot, tmp_path):
-        report = process_data(ProcessDataConfig(images=small_shoot.folder, out=tmp_path / "d",
-                                                camera_model="SIMPLE_PINHOLE", num_threads=2))
+        report = process_data(
+            ProcessDataConfig(
+                images=small_shoot.folder, out=tmp_path / "d", camera_model="SIMPLE_PINHOLE", num_threads=2
+            )
+        )
         assert report.camera_model == "SIMPLE_PINHOLE" and (report.width, report.height) == (192, 192)
         rotation_error, position_error = camera_errors(tmp_path / "d", small_shoot.cameras)
         assert rotation_error < ROTATION_LIMIT_DEG and position_error < POSITION_LIMIT
@@ -112,8 +119,21 @@ class TestProcessData:
         assert sorted(p.name for p in out.iterdir()) == before
 
     def test_cli_prints_the_report_and_downscales(self, small_shoot, tmp_path, capsys):
-        cli_main(["process-data", "--images", str(small_shoot.folder), "--out", str(tmp_path / "d"),
-                  "--camera-model", "SIMPLE_PINHOLE", "--downscale", "2", "--num-threads", "2"])
+        cli_main(
+            [
+                "process-data",
+                "--images",
+                str(small_shoot.folder),
+                "--out",
+                str(tmp_path / "d"),
+                "--camera-model",
+                "SIMPLE_PINHOLE",
+                "--downscale",
+                "2",
+                "--num-threads",
+                "2",
+            ]
+        )
         printed = capsys.readouterr().out
         assert f"placed {len(small_shoot.names)} / {len(small_shoot.names)} photos" in printed
         assert "IMG_0001.jpg" in printed and "SIMPLE_PINHOLE 96x96" in printed
@@ -139,8 +159,14 @@ class TestTrainOnResult:
 
             name, backbone_config = "voxel-grid", register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=16)
         data = load_scene(DataConfig(data=processed[1], downscale=4))
-        config = train_config_for(type(backbone_config))(backbone=backbone_config, out=tmp_path / "run", quiet=True,
-                                                         save_renders=False, checkpoint_every=10**9, max_steps=2)
+        config = train_config_for(type(backbone_config))(
+            backbone=backbone_config,
+            out=tmp_path / "run",
+            quiet=True,
+            save_renders=False,
+            checkpoint_every=10**9,
+            max_steps=2,
+        )
         trainer = Trainer(config, name, data)
         before = [p.detach().clone() for p in trainer.backbone.parameters()]
         records = [trainer.train_step() for _ in range(2)]
@@ -176,10 +202,15 @@ class TestFindPhotos:
 
 
 class TestCheckConfig:
-    @pytest.mark.parametrize("change,message", [({"downscale": 3}, "--downscale"),
-                                                ({"min_registered": 0.0}, "--min-registered"),
-                                                ({"exposure": -1.0}, "--exposure"),
-                                                ({"out": None}, "--out must differ")])
+    @pytest.mark.parametrize(
+        "change,message",
+        [
+            ({"downscale": 3}, "--downscale"),
+            ({"min_registered": 0.0}, "--min-registered"),
+            ({"exposure": -1.0}, "--exposure"),
+            ({"out": None}, "--out must differ"),
+        ],
+    )
     def test_bad_flags(self, tmp_path, change, message):
         plain_photos(tmp_path, 3)
         config = replace(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), **change)
@@ -223,12 +254,20 @@ class TestLoadPhoto:
 
 class TestReadExif:
     def test_exposure_aperture_iso_camera(self, tmp_path):
-        path = save_jpeg(tmp_path / "a.jpg", np.zeros((4, 4, 3)), exposure=Fraction(1, 60), iso=400,
-                         f_number=Fraction(28, 10), focal_35mm=26, model="Pixel 8")
+        path = save_jpeg(
+            tmp_path / "a.jpg",
+            np.zeros((4, 4, 3)),
+            exposure=Fraction(1, 60),
+            iso=400,
+            f_number=Fraction(28, 10),
+            focal_35mm=26,
+            model="Pixel 8",
+        )
         with Image.open(path) as image:
             exif = read_exif(image)
-        assert exif == PhotoExif(exposure_time=1 / 60, f_number=2.8, iso=400.0, focal_35mm=26.0,
-                                 camera="Mono-HDR Pixel 8")
+        assert exif == PhotoExif(
+            exposure_time=1 / 60, f_number=2.8, iso=400.0, focal_35mm=26.0, camera="Mono-HDR Pixel 8"
+        )
 
     def test_no_exif(self, tmp_path):
         Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.jpg")
@@ -251,9 +290,12 @@ class TestRelativeExposure:
 
     def test_equivalent_exposures_agree(self):
         # One stop less time, one stop more ISO, the same light: the same relative exposure.
-        assert relative_exposure(1 / 30, 100, 4.0, 100, 2.8) == pytest.approx(relative_exposure(1 / 60, 200, 4.0, 100, 2.8))
         assert relative_exposure(1 / 30, 100, 4.0, 100, 2.8) == pytest.approx(
-            relative_exposure(1 / 60, 100, 4.0 / math.sqrt(2), 100, 2.8))
+            relative_exposure(1 / 60, 200, 4.0, 100, 2.8)
+        )
+        assert relative_exposure(1 / 30, 100, 4.0, 100, 2.8) == pytest.approx(
+            relative_exposure(1 / 60, 100, 4.0 / math.sqrt(2), 100, 2.8)
+        )
 
 
 class TestAssignExposures:
@@ -285,9 +327,11 @@ class TestAssignExposures:
         assert reference == {"iso": None, "f_number": None}
 
     def test_varying_iso_and_aperture_are_folded(self):
-        exifs = [PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
-                 PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
-                 PhotoExif(exposure_time=0.01, iso=400, f_number=4.0)]
+        exifs = [
+            PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
+            PhotoExif(exposure_time=0.01, iso=100, f_number=2.8),
+            PhotoExif(exposure_time=0.01, iso=400, f_number=4.0),
+        ]
         exposures, reference = assign_exposures(["a", "b", "c"], exifs, {}, None)
         assert reference == {"iso": 100, "f_number": 2.8}  # the most common settings
         assert exposures[0] == (0.01, "exif")
@@ -316,8 +360,9 @@ class TestReadExposureCsv:
         plain_photos(tmp_path / "photos", 3)
         (tmp_path / "e.csv").write_text("p0.jpg,0.5\n")
         with pytest.raises(DatasetError, match=r"2 photo\(s\) have no exposure time.*p1.jpg, p2.jpg"):
-            process_data(ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out",
-                                           exposure_csv=tmp_path / "e.csv"))
+            process_data(
+                ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out", exposure_csv=tmp_path / "e.csv")
+            )
 
 
 class TestCheckOneCamera:
@@ -351,17 +396,28 @@ class TestTooFewRegistered:
             (photos / name).write_bytes((small_shoot.folder / name).read_bytes())
         rng = np.random.default_rng(1)
         for index in range(3):
-            save_jpeg(photos / f"ZZ_noise{index}.jpg", rng.random((192, 192, 3)), exposure=Fraction(1, 60), iso=100,
-                      f_number=Fraction(28, 10), focal_35mm=35)
-        report = process_data(ProcessDataConfig(images=photos, out=tmp_path / "out", camera_model="SIMPLE_PINHOLE",
-                                                num_threads=2))
+            save_jpeg(
+                photos / f"ZZ_noise{index}.jpg",
+                rng.random((192, 192, 3)),
+                exposure=Fraction(1, 60),
+                iso=100,
+                f_number=Fraction(28, 10),
+                focal_35mm=35,
+            )
+        report = process_data(
+            ProcessDataConfig(images=photos, out=tmp_path / "out", camera_model="SIMPLE_PINHOLE", num_threads=2)
+        )
         assert report.failed == ["ZZ_noise0.jpg", "ZZ_noise1.jpg", "ZZ_noise2.jpg"]
         assert any("could not be placed" in note and "ZZ_noise1.jpg" in note for note in report.warnings)
         assert not (tmp_path / "out" / "images" / "016_0.png").exists()
 
     def test_below_min_registered_is_an_error(self, tmp_path):
-        photos = [PhotoRecord(source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=0.01, exposure_source="exif",
-                              registered=i < 5) for i in range(10)]
+        photos = [
+            PhotoRecord(
+                source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=0.01, exposure_source="exif", registered=i < 5
+            )
+            for i in range(10)
+        ]
         config = ProcessDataConfig(images=tmp_path, out=tmp_path / "out", min_registered=0.6)
         with pytest.raises(DatasetError, match=r"placed only 5 of 10 photos \(need 6.*2 separate groups.*5.jpg, 6.jpg"):
             check_registered(config, photos, models=2)
@@ -371,8 +427,12 @@ class TestTooFewRegistered:
 class TestExposureWarnings:
     @staticmethod
     def photos(*exposures):
-        return [PhotoRecord(source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=e, exposure_source="exif",
-                            registered=True, view=True) for i, e in enumerate(exposures)]
+        return [
+            PhotoRecord(
+                source=f"{i}.jpg", name=f"{i:03d}_0.png", exposure=e, exposure_source="exif", registered=True, view=True
+            )
+            for i, e in enumerate(exposures)
+        ]
 
     def test_single_exposure(self):
         notes = exposure_warnings(self.photos(0.01, 0.01, 0.01), {"iso": None, "f_number": None})
@@ -404,8 +464,9 @@ class TestLargerShoot:
     def test_24_views_at_256_px(self, studio_cache, texture, tmp_path):
         scene = textured_scene(texture, views=24, resolution=256)
         photos = shoot(scene, tmp_path / "photos", [Fraction(1, 125)])
-        report = process_data(ProcessDataConfig(images=photos.folder, out=tmp_path / "d", matcher="sequential",
-                                                num_threads=2))
+        report = process_data(
+            ProcessDataConfig(images=photos.folder, out=tmp_path / "d", matcher="sequential", num_threads=2)
+        )
         assert report.failed == []
         assert any("same exposure" in note for note in report.warnings)
         rotation_error, position_error = camera_errors(tmp_path / "d", photos.cameras)

@@ -5,14 +5,14 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
+from process_data_photos import textured_scene
+from raw_files import write_dng
 
+from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
+from mono_hdr_plugin.apps.studio.render import render_scene
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image
 from mono_hdr_plugin.data.photos.raw import decode, encode, read_raw
-from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
-from mono_hdr_plugin.apps.studio.render import render_scene
-from process_data_photos import textured_scene
-from raw_files import write_dng
 
 
 def smooth_image(height: int = 64, width: int = 96) -> np.ndarray:
@@ -74,9 +74,14 @@ def raw_shoot(studio_cache, texture, tmp_path_factory):
     folder = tmp_path_factory.mktemp("raw")
     files = []
     for view in range(16):
-        for factor in ((1, 4, 16) if view == 0 else (4,)):
-            files.append(write_dng(folder / f"IMG_{len(files) + 1:04d}.dng", radiance[view] * factor * 0.75,
-                                   exposure=Fraction(factor, 240)))
+        for factor in (1, 4, 16) if view == 0 else (4,):
+            files.append(
+                write_dng(
+                    folder / f"IMG_{len(files) + 1:04d}.dng",
+                    radiance[view] * factor * 0.75,
+                    exposure=Fraction(factor, 240),
+                )
+            )
     out = tmp_path_factory.mktemp("raw-data") / "dataset"
     report = process_data(ProcessDataConfig(images=folder, out=out, camera_model="SIMPLE_PINHOLE", num_threads=2))
     return report, out, folder

@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from process_data_photos import textured_scene
 
-from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.io import read_exr
-from mono_hdr_plugin.data.loading import captured_scene, downscale_image, load_scene
-from mono_hdr_plugin.core.metrics import hdr_metrics
-from mono_hdr_plugin.data.photos.exif import EXPOSURE_MODE_AUTO_BRACKET, read_exif
 from mono_hdr_plugin.apps.process_data import ProcessDataConfig, process_data
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import render_scene
 from mono_hdr_plugin.apps.studio.shoot import ShootConfig, metered_exposure, shoot, third_stop
-from process_data_photos import textured_scene
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.io import read_exr
+from mono_hdr_plugin.data.loading import captured_scene, downscale_image, load_scene
+from mono_hdr_plugin.data.photos.exif import read_exif
 
 SHOOT = ShootConfig(views="all", bracket_every=4, bracket_stops=(-2.0, 0.0, 2.0))
 """16 viewpoints, brackets of three at four of them: 24 photos."""
@@ -121,8 +121,9 @@ def merged_psnr(out, report, photos, scene) -> list[float]:
 @pytest.fixture(scope="module")
 def processed_shoot(photos, tmp_path_factory):
     out = tmp_path_factory.mktemp("shoot-data") / "dataset"
-    return process_data(ProcessDataConfig(images=photos.folder, out=out, camera_model="SIMPLE_PINHOLE",
-                                          num_threads=2)), out
+    return process_data(
+        ProcessDataConfig(images=photos.folder, out=out, camera_model="SIMPLE_PINHOLE", num_threads=2)
+    ), out
 
 
 class TestProcessBrackets:
@@ -167,8 +168,9 @@ def unknown(scene, tmp_path_factory):
     """The same shoot without exposure EXIF, through process-data."""
     folder = tmp_path_factory.mktemp("no-exif")
     result = shoot(scene, folder / "photos", replace(SHOOT, exposure_exif=False))
-    report = process_data(ProcessDataConfig(images=result.folder, out=folder / "dataset",
-                                            camera_model="SIMPLE_PINHOLE", num_threads=2))
+    report = process_data(
+        ProcessDataConfig(images=result.folder, out=folder / "dataset", camera_model="SIMPLE_PINHOLE", num_threads=2)
+    )
     return result, report, folder / "dataset"
 
 

@@ -39,21 +39,32 @@ def jpegs(folder: Path, count: int, size=(32, 24)) -> list[Path]:
 
 
 def record(index: int, exposure: float | None = 0.01, **fields) -> PhotoRecord:
-    return PhotoRecord(source=f"p{index}.jpg", name=f"{index:03d}_0.png", exposure=exposure,
-                       exposure_source="exif" if exposure else "unknown", **fields)
+    return PhotoRecord(
+        source=f"p{index}.jpg",
+        name=f"{index:03d}_0.png",
+        exposure=exposure,
+        exposure_source="exif" if exposure else "unknown",
+        **fields,
+    )
 
 
 class TestConfigStage:
-    @pytest.mark.parametrize("change,message", [
-        ({"test_every": 1}, r"--test-every must be an integer >= 2, got 1"),
-        ({"fps": 0.0}, r"--fps must be a positive number, got 0.0"),
-        ({"min_sharpness": 1.0}, r"--min-sharpness must be a number in \[0, 1\), got 1.0"),
-        ({"min_registered": 0.0}, r"--min-registered must be a number in \(0, 1\], got 0.0"),
-        ({"exposure": -1.0}, r"--exposure must be a positive number, got -1.0"),
-        ({"bracket": BracketTolerances(max_gap=math.nan)}, r"--bracket.max-gap must be a finite number, got nan"),
-        ({"downscale": 3}, r"--downscale must be 1, 2 or 4, got 3"),
-        ({"video": Path("walk.mp4")}, r"pass either --images FOLDER \(photos\) or --video FILE, not both or neither"),
-    ])
+    @pytest.mark.parametrize(
+        "change,message",
+        [
+            ({"test_every": 1}, r"--test-every must be an integer >= 2, got 1"),
+            ({"fps": 0.0}, r"--fps must be a positive number, got 0.0"),
+            ({"min_sharpness": 1.0}, r"--min-sharpness must be a number in \[0, 1\), got 1.0"),
+            ({"min_registered": 0.0}, r"--min-registered must be a number in \(0, 1\], got 0.0"),
+            ({"exposure": -1.0}, r"--exposure must be a positive number, got -1.0"),
+            ({"bracket": BracketTolerances(max_gap=math.nan)}, r"--bracket.max-gap must be a finite number, got nan"),
+            ({"downscale": 3}, r"--downscale must be 1, 2 or 4, got 3"),
+            (
+                {"video": Path("walk.mp4")},
+                r"pass either --images FOLDER \(photos\) or --video FILE, not both or neither",
+            ),
+        ],
+    )
     def test_flag_checks_name_the_flag(self, tmp_path, change, message):
         config = replace(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), **change)
         with pytest.raises(FlagError, match=f"^{message}$"):
@@ -70,8 +81,17 @@ class TestConfigStage:
     def test_the_command_line_refuses_before_any_work(self, tmp_path):
         jpegs(tmp_path / "photos", 3)
         with pytest.raises(FlagError, match="^--test-every must be an integer >= 2, got 0$"):
-            cli_main(["process-data", "--images", str(tmp_path / "photos"), "--out", str(tmp_path / "out"),
-                      "--test-every", "0"])
+            cli_main(
+                [
+                    "process-data",
+                    "--images",
+                    str(tmp_path / "photos"),
+                    "--out",
+                    str(tmp_path / "out"),
+                    "--test-every",
+                    "0",
+                ]
+            )
         assert sorted(path.name for path in tmp_path.iterdir()) == ["photos"]
 
 
@@ -98,12 +118,16 @@ class TestPhotosStage:
 
 class TestExposuresStage:
     def test_records_carry_each_photos_exposure_and_settings(self):
-        staged = [StagedPhoto(source=Path(f"p{i}.jpg"), name=f"{i:03d}_0.png", exif=exif, raw=False, brightness=0.5)
-                  for i, exif in enumerate([PhotoExif(exposure_time=0.5, iso=100.0), PhotoExif(), PhotoExif()])]
+        staged = [
+            StagedPhoto(source=Path(f"p{i}.jpg"), name=f"{i:03d}_0.png", exif=exif, raw=False, brightness=0.5)
+            for i, exif in enumerate([PhotoExif(exposure_time=0.5, iso=100.0), PhotoExif(), PhotoExif()])
+        ]
         photos, reference = photo_records(staged, {"p1.jpg": 0.25}, 0.125, Path("e.csv"))
         assert [(p.source, p.name, p.exposure, p.exposure_source) for p in photos] == [
-            ("p0.jpg", "000_0.png", 0.5, "exif"), ("p1.jpg", "001_0.png", 0.25, "csv"),
-            ("p2.jpg", "002_0.png", 0.125, "flag")]
+            ("p0.jpg", "000_0.png", 0.5, "exif"),
+            ("p1.jpg", "001_0.png", 0.25, "csv"),
+            ("p2.jpg", "002_0.png", 0.125, "flag"),
+        ]
         assert photos[0].iso == 100.0 and reference == {"iso": None, "f_number": None}
 
 
@@ -114,15 +138,20 @@ class TestSfmStage:
 
     def test_placed_photos_are_marked_and_the_others_reported(self, tmp_path):
         placed = {"000_0.png", "001_0.png", "002_0.png"}
-        model = SimpleNamespace(images={i: SimpleNamespace(name=f"{i:03d}_0.png", has_pose=f"{i:03d}_0.png" in placed)
-                                        for i in range(4)})
+        model = SimpleNamespace(
+            images={i: SimpleNamespace(name=f"{i:03d}_0.png", has_pose=f"{i:03d}_0.png" in placed) for i in range(4)}
+        )
         photos = [record(i) for i in range(4)]
         mark_registered(photos, model)
         assert [photo.registered for photo in photos] == [True, True, True, False]
         notes = check_registered(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, models=1)
         assert notes == ["1 photo(s) could not be placed and are left out: p3.jpg"]
-        assert check_registered(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, models=1,
-                                merged={"p3.jpg"}) == []
+        assert (
+            check_registered(
+                ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, models=1, merged={"p3.jpg"}
+            )
+            == []
+        )
 
 
 def textured_radiance(height: int = 48, width: int = 64) -> np.ndarray:
@@ -143,8 +172,15 @@ class TestBracketsStage:
             pixels = encode(np.clip(radiance * exposure, 0, 1), "srgb")
             path = tmp_path / f"p{i}.png"
             write_png(path, pixels)
-            staged.append(StagedPhoto(source=path, name=f"{i:03d}_0.png", exif=PhotoExif(), raw=False,
-                                      brightness=float(np.round(pixels * 255).mean() / 255)))
+            staged.append(
+                StagedPhoto(
+                    source=path,
+                    name=f"{i:03d}_0.png",
+                    exif=PhotoExif(),
+                    raw=False,
+                    brightness=float(np.round(pixels * 255).mean() / 255),
+                )
+            )
             photos.append(record(i, exposure, registered=True))
         return radiance, staged, photos
 
@@ -157,9 +193,19 @@ class TestBracketsStage:
         assert plan.view == 1  # as bright as the single photo
         hdr_views = mark_views(photos, plans)
         assert [(p.view, p.bracket, p.bracket_exposure) for p in photos] == [
-            (False, 0, 1.0), (True, 0, 2.0), (False, 0, 4.0), (True, None, None)]
-        assert hdr_views == [HdrView(name="001_0.png", sources=["p0.jpg", "p1.jpg", "p2.jpg"],
-                                     exposures=[1.0, 2.0, 4.0], exposures_estimated=False)]
+            (False, 0, 1.0),
+            (True, 0, 2.0),
+            (False, 0, 4.0),
+            (True, None, None),
+        ]
+        assert hdr_views == [
+            HdrView(
+                name="001_0.png",
+                sources=["p0.jpg", "p1.jpg", "p2.jpg"],
+                exposures=[1.0, 2.0, 4.0],
+                exposures_estimated=False,
+            )
+        ]
         hdr = merge_plan(plan, staged, response_curve("srgb"), "srgb", hdr_views[0].sources)
         assert hdr.shape == radiance.shape
         assert np.median(np.abs(hdr / radiance - 1)) < 0.03  # in units of the darkest member's exposure
@@ -180,7 +226,10 @@ class TestLayoutStage:
         config = ProcessDataConfig(images=tmp_path, out=tmp_path / "out", downscale=2, test_every=2)
         assert write_metadata(config, model, photos, response, tmp_path / "d") == ["000_0.png"]
         assert json.loads((tmp_path / "d" / "exposures.json").read_text()) == {
-            "000_0.png": 0.01, "001_0.png": 0.01, "003_0.png": 0.01}
+            "000_0.png": 0.01,
+            "001_0.png": 0.01,
+            "003_0.png": 0.01,
+        }
         assert json.loads((tmp_path / "d" / "splits.json").read_text()) == {"test": ["000_0.png"]}
         assert len(json.loads((tmp_path / "d" / "camera_response.json").read_text())["linear_rgb"]) == 256
         written = pycolmap.Reconstruction(tmp_path / "d" / "sparse" / "0")
@@ -204,11 +253,23 @@ class TestLayoutStage:
 
 class TestReportStage:
     def test_json_and_printed_summary(self, tmp_path):
-        photos = [record(0, 1 / 60, registered=True, view=True), record(1, 1 / 15, registered=True, view=True),
-                  record(2, 1 / 30)]
-        report = ProcessReport(out=tmp_path / "mine", photos=photos, camera_model="PINHOLE", width=40, height=30,
-                               matcher="exhaustive", mean_reprojection_error=0.5, num_points=100,
-                               test_views=["000_0.png"], warnings=["a note"])
+        photos = [
+            record(0, 1 / 60, registered=True, view=True),
+            record(1, 1 / 15, registered=True, view=True),
+            record(2, 1 / 30),
+        ]
+        report = ProcessReport(
+            out=tmp_path / "mine",
+            photos=photos,
+            camera_model="PINHOLE",
+            width=40,
+            height=30,
+            matcher="exhaustive",
+            mean_reprojection_error=0.5,
+            num_points=100,
+            test_views=["000_0.png"],
+            warnings=["a note"],
+        )
         data = report.to_json()
         assert data["failed"] == ["p2.jpg"] and data["exposure_range"] == (1 / 60, 1 / 15)
         assert data["out"] == str(tmp_path / "mine") and data["exposures_known"]

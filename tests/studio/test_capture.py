@@ -6,9 +6,18 @@ import numpy as np
 import pytest
 
 from mono_hdr_plugin.apps.studio import capture as capture_module
-from mono_hdr_plugin.apps.studio.capture import (INVERSES, PHYSICAL_ORDER, STAGES, CaptureContext,
-                                            CaptureSettings, capture, inverse_response_curve,
-                                            linearise, response_curve, validate_effects)
+from mono_hdr_plugin.apps.studio.capture import (
+    INVERSES,
+    PHYSICAL_ORDER,
+    STAGES,
+    CaptureContext,
+    CaptureSettings,
+    capture,
+    inverse_response_curve,
+    linearise,
+    response_curve,
+    validate_effects,
+)
 
 CONTEXT = CaptureContext(exposure=2.0, seed=3)
 
@@ -107,11 +116,11 @@ class TestDeclaredEffects:
     @pytest.mark.parametrize("extra", [e for e in PHYSICAL_ORDER if e not in ("exposure", "quantize")])
     def test_output_is_exactly_the_declared_stages(self, extra, radiance):
         base = ("exposure", "quantize")
-        settings = CaptureSettings(gain=1.5, offset=0.02, vignette=0.3, white_balance=(1.1, 1.0, 0.9),
-                                   saturation=0.8)
+        settings = CaptureSettings(gain=1.5, offset=0.02, vignette=0.3, white_balance=(1.1, 1.0, 0.9), saturation=0.8)
         without = capture(radiance, 2.0, base, settings)
-        expected = STAGES["quantize"](STAGES["exposure"](radiance, settings, CaptureContext(2.0)),
-                                      settings, CaptureContext(2.0))
+        expected = STAGES["quantize"](
+            STAGES["exposure"](radiance, settings, CaptureContext(2.0)), settings, CaptureContext(2.0)
+        )
         assert np.array_equal(without, expected)  # bit-identical: nothing undeclared ran
         assert not np.array_equal(capture(radiance, 2.0, base + (extra,), settings, seed=1), without)
 

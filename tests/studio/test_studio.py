@@ -8,19 +8,27 @@ import numpy as np
 import pytest
 import torch
 
-from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.data.io import read_image
-from mono_hdr_plugin.data.loading import load_scene, scene_names, to_scene_data
-from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.apps.studio import figures
 from mono_hdr_plugin.apps.studio import render as render_module
 from mono_hdr_plugin.apps.studio.commands import ScenesConfig, list_scenes, list_scenes_command
 from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
 from mono_hdr_plugin.apps.studio.render import dynamic_range, render_key, render_scene, seed_agreement
-from mono_hdr_plugin.apps.studio.scene import (STUDIO_EXPOSURES, CameraRig, StudioScene, diffuse, lamp, noise_image,
-                                          noise_texture, rgb)
+from mono_hdr_plugin.apps.studio.scene import (
+    STUDIO_EXPOSURES,
+    CameraRig,
+    StudioScene,
+    diffuse,
+    lamp,
+    noise_image,
+    noise_texture,
+    rgb,
+)
 from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES, SCENES
+from mono_hdr_plugin.core.metrics import normalise_hdr
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.io import read_image
+from mono_hdr_plugin.data.loading import load_scene, scene_names, to_scene_data
 
 REAL = {scene.name: scene for scene in BUILTIN_SCENES}
 
@@ -61,10 +69,22 @@ class TestRegistry:
 
     def test_table_prints(self, capsys, monkeypatch):
         monkeypatch.setenv("COLUMNS", "200")
-        with mock.patch("mono_hdr_plugin.apps.studio.commands.list_scenes", return_value=[
-                {"name": "demo", "resolution": "64x64", "views": 35, "spp": 32, "description": "d",
-                 "dynamic_range": 12345.0, "agreement_hdr": 51.234, "agreement_ldr": 47.06,
-                 "effects": ("exposure", "crf")}]):
+        with mock.patch(
+            "mono_hdr_plugin.apps.studio.commands.list_scenes",
+            return_value=[
+                {
+                    "name": "demo",
+                    "resolution": "64x64",
+                    "views": 35,
+                    "spp": 32,
+                    "description": "d",
+                    "dynamic_range": 12345.0,
+                    "agreement_hdr": 51.234,
+                    "agreement_ldr": 47.06,
+                    "effects": ("exposure", "crf"),
+                }
+            ],
+        ):
             list_scenes_command(ScenesConfig())
         out = capsys.readouterr().out
         assert "demo" in out and "1.2e+04" in out and "exposure, crf" in out and "51.2 / 47.1 dB" in out
@@ -118,9 +138,14 @@ class TestRenderCache:
         assert (studio_cache / "studio" / f"demo-{render_key(tiny_demo)}.npz").is_file()  # other tests add others
 
     def test_key_changes_with_definition(self, tiny_demo):
-        keys = {render_key(tiny_demo), render_key(replace(tiny_demo, spp=9)),
-                render_key(replace(tiny_demo, resolution=(24, 20))),
-                render_key(replace(tiny_demo, content=lambda: {**tiny_demo.content(), "extra": lamp((0, 0, 3), 0.1, (1, 1, 1))}))}
+        keys = {
+            render_key(tiny_demo),
+            render_key(replace(tiny_demo, spp=9)),
+            render_key(replace(tiny_demo, resolution=(24, 20))),
+            render_key(
+                replace(tiny_demo, content=lambda: {**tiny_demo.content(), "extra": lamp((0, 0, 3), 0.1, (1, 1, 1))})
+            ),
+        }
         assert len(keys) == 4
 
     def test_render_is_hdr_and_finite(self, tiny_demo):
@@ -141,16 +166,27 @@ class TestRenderCache:
 
 class TestSeedAgreement:
     def test_identical_renders_agree_perfectly_whatever_the_sensor_noise(self):
-        noisy = StudioScene(name="n", description="", content=dict, rig=CameraRig(target=(0, 0, 0), radius=1),
-                            effects=("exposure", "noise", "crf", "clip", "quantize"))
+        noisy = StudioScene(
+            name="n",
+            description="",
+            content=dict,
+            rig=CameraRig(target=(0, 0, 0), radius=1),
+            effects=("exposure", "noise", "crf", "clip", "quantize"),
+        )
         radiance = np.random.default_rng(0).random((2, 8, 8, 3)).astype(np.float32)
         hdr, ldr = seed_agreement(radiance, radiance.copy(), noisy)
         assert np.isinf(hdr).all() and np.isinf(ldr).all()
 
     def test_known_psnr(self):
         """A difference of 0.01 on 45 of 48 values of a linear photo: PSNR = 10 log10(1 / (1e-4 * 45 / 48))."""
-        scene = StudioScene(name="n", description="", content=dict, rig=CameraRig(target=(0, 0, 0), radius=1),
-                            effects=("exposure",), exposures=(1.0,))
+        scene = StudioScene(
+            name="n",
+            description="",
+            content=dict,
+            rig=CameraRig(target=(0, 0, 0), radius=1),
+            effects=("exposure",),
+            exposures=(1.0,),
+        )
         first = np.full((1, 4, 4, 3), 0.5, np.float32)
         first[0, 0, 0] = 1.0  # the maximum both images share
         second = first + np.float32(0.01)
@@ -162,9 +198,14 @@ class TestSeedAgreement:
 class TestCameraMatchesMitsuba:
     def test_bright_point_lands_on_projected_pixel(self, studio_cache):
         point = (0.3, 0.2, 0.4)
-        scene = StudioScene(name="dot", description="one small emitter", spp=4, resolution=(40, 30),
-                            content=lambda: {"dot": lamp(point, 0.03, (100.0, 100.0, 100.0))},
-                            rig=CameraRig(target=(0.0, 0.0, 0.0), radius=3.0, views=3, fov_deg=40))
+        scene = StudioScene(
+            name="dot",
+            description="one small emitter",
+            spp=4,
+            resolution=(40, 30),
+            content=lambda: {"dot": lamp(point, 0.03, (100.0, 100.0, 100.0))},
+            rig=CameraRig(target=(0.0, 0.0, 0.0), radius=3.0, views=3, fov_deg=40),
+        )
         render = render_scene(scene, use_cache=False)
         for camera, image in zip(scene.cameras(), render.radiance):
             pixel, depth = camera.project(torch.tensor([point]))
@@ -184,7 +225,9 @@ class TestStudioDataset:
 
     def test_multi_protocol_seeded(self, tiny_demo):
         captured = studio_captured_scene(tiny_demo)
-        pick = lambda seed: [v.exposure for v in to_scene_data(captured, DataConfig(protocol="multi", exposure_seed=seed)).train]
+        pick = lambda seed: [
+            v.exposure for v in to_scene_data(captured, DataConfig(protocol="multi", exposure_seed=seed)).train
+        ]
         assert pick(0) == pick(0) and set(pick(0)) <= {0.125, 2.0, 32.0}
         assert any(pick(0) != pick(seed) for seed in range(1, 5))
         data = to_scene_data(captured, DataConfig(protocol="multi"))

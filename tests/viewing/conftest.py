@@ -1,24 +1,36 @@
 """Small trained models for the viewer, video and export tests, trained here in seconds."""
 
 import pytest
-
 import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
+
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trained import TrainedModel
 from mono_hdr_plugin.training.trainer import Trainer
 
 
-def train_model(tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono",
-                steps: int = 20) -> tuple[Trainer, TrainedModel]:
+def train_model(
+    tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono", steps: int = 20
+) -> tuple[Trainer, TrainedModel]:
     """A Trainer after `steps` steps (checkpoint written) and the same model as the viewer loads it."""
-    config = train_config_for(type(backbone_config), method)(backbone=backbone_config, out=tmp_path / "run",
-                                                             quiet=True, max_steps=steps, max_eval_views=1,
-                                                             checkpoint_every=10**9, save_renders=False)
+    config = train_config_for(type(backbone_config), method)(
+        backbone=backbone_config,
+        out=tmp_path / "run",
+        quiet=True,
+        max_steps=steps,
+        max_eval_views=1,
+        checkpoint_every=10**9,
+        save_renders=False,
+    )
     trainer = Trainer(config, backbone_name, scene)
     trainer.train()
     trainer.pipeline.eval()
-    model = TrainedModel(pipeline=trainer.pipeline, scene=scene, config=trainer.config, step=trainer.step,
-                         train_seconds=trainer.train_seconds)
+    model = TrainedModel(
+        pipeline=trainer.pipeline,
+        scene=scene,
+        config=trainer.config,
+        step=trainer.step,
+        train_seconds=trainer.train_seconds,
+    )
     return trainer, model
 
 
@@ -31,17 +43,36 @@ def voxel_mono(tmp_path_factory, voxel_scene, voxel_backbone_config):
 @pytest.fixture(scope="session")
 def voxel_crf(tmp_path_factory, voxel_scene, voxel_backbone_config):
     """The HDR-NeRF baseline (a learned camera response) on the voxel-grid backbone, 20 steps."""
-    return train_model(tmp_path_factory.mktemp("voxel-crf"), voxel_scene, "voxel-grid", voxel_backbone_config,
-                       method="hdr-nerf")[1]
+    return train_model(
+        tmp_path_factory.mktemp("voxel-crf"), voxel_scene, "voxel-grid", voxel_backbone_config, method="hdr-nerf"
+    )[1]
 
 
 @pytest.fixture(scope="session")
 def demo_voxel_checkpoint(tmp_path_factory):
     """A voxel-grid checkpoint of the built-in demo scene (outside slow tests, its tiny variant),
     as the command line writes it."""
-    from mono_hdr_plugin.apps.cli import main  # noqa: PLC0415
+    from mono_hdr_plugin.apps.cli import main
 
     out = tmp_path_factory.mktemp("demo-voxel") / "run"
-    main(["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet",
-          "--max-eval-views", "1", "--no-save-renders", "--backbone.resolution", "8", "--backbone.samples-per-ray", "8"])
+    main(
+        [
+            "train",
+            "voxel-grid",
+            "--scene",
+            "demo",
+            "--max-steps",
+            "3",
+            "--out",
+            str(out),
+            "--quiet",
+            "--max-eval-views",
+            "1",
+            "--no-save-renders",
+            "--backbone.resolution",
+            "8",
+            "--backbone.samples-per-ray",
+            "8",
+        ]
+    )
     return out / "checkpoints" / "latest.pt"

@@ -11,13 +11,17 @@ import urllib.request
 
 import numpy as np
 import pytest
-
 from browser_screenshot import chromium_available, screenshot_when  # examples/, on sys.path via conftest
+
 from mono_hdr_plugin.apps.cli import main
 
-pytestmark = [pytest.mark.slow,
-              pytest.mark.skipif(not chromium_available() and not os.environ.get("CI"),
-                                 reason="needs Debian's chromium and chromium-driver (.ci/run installs them)")]
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not chromium_available() and not os.environ.get("CI"),
+        reason="needs Debian's chromium and chromium-driver (.ci/run installs them)",
+    ),
+]
 SCENE_WIDTH = 800  # the left part of the 1200-px window shows the render; the controls sit on the right
 
 
@@ -59,17 +63,47 @@ def stop(process: subprocess.Popen, url: str) -> str:
 @pytest.fixture(scope="module")
 def gs_checkpoint(tmp_path_factory):
     out = tmp_path_factory.mktemp("view") / "run"
-    main(["train", "gs", "--scene", "demo", "--max-steps", "60", "--out", str(out), "--quiet", "--max-eval-views", "1",
-          "--no-save-renders", "--backbone.random-init-points", "3000"])
+    main(
+        [
+            "train",
+            "gs",
+            "--scene",
+            "demo",
+            "--max-steps",
+            "60",
+            "--out",
+            str(out),
+            "--quiet",
+            "--max-eval-views",
+            "1",
+            "--no-save-renders",
+            "--backbone.random-init-points",
+            "3000",
+        ]
+    )
     return out / "checkpoints" / "latest.pt"
 
 
 def test_view_serves_a_rendered_page_and_stops_cleanly(gs_checkpoint, tmp_path):
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.apps.cli", "view", "--checkpoint", str(gs_checkpoint),
-                                "--port", str(port), "--out", str(tmp_path / "saved")],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mono_hdr_plugin.apps.cli",
+            "view",
+            "--checkpoint",
+            str(gs_checkpoint),
+            "--port",
+            str(port),
+            "--out",
+            str(tmp_path / "saved"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         wait_for_page(url, process)
         pixels = screenshot_when(url, tmp_path / "viewer.png", rendered)
@@ -83,11 +117,33 @@ def test_view_serves_a_rendered_page_and_stops_cleanly(gs_checkpoint, tmp_path):
 def test_train_with_viewer_shows_training_and_stops_cleanly(tmp_path):
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    process = subprocess.Popen([sys.executable, "-m", "mono_hdr_plugin.apps.cli", "train", "gs", "--scene", "demo",
-                                "--max-steps", "40", "--out", str(tmp_path / "run"), "--quiet", "--max-eval-views", "1",
-                                "--no-save-renders", "--backbone.random-init-points", "3000", "--viewer",
-                                "--viewer-port", str(port)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mono_hdr_plugin.apps.cli",
+            "train",
+            "gs",
+            "--scene",
+            "demo",
+            "--max-steps",
+            "40",
+            "--out",
+            str(tmp_path / "run"),
+            "--quiet",
+            "--max-eval-views",
+            "1",
+            "--no-save-renders",
+            "--backbone.random-init-points",
+            "3000",
+            "--viewer",
+            "--viewer-port",
+            str(port),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         wait_for_page(url, process)
         pixels = screenshot_when(url, tmp_path / "training.png", rendered)

@@ -7,10 +7,16 @@ import pytest
 import torch
 import viser.transforms as vtf
 
-from mono_hdr_plugin.apps.camera_paths import (ViewerCamera, camera_from_viewer, camera_path, focus_point, scene_up,
-                                         viewer_from_camera)
-from mono_hdr_plugin.training.evaluation import first_per_camera
+from mono_hdr_plugin.apps.camera_paths import (
+    ViewerCamera,
+    camera_from_viewer,
+    camera_path,
+    focus_point,
+    scene_up,
+    viewer_from_camera,
+)
 from mono_hdr_plugin.core.cameras import look_at
+from mono_hdr_plugin.training.evaluation import first_per_camera
 
 
 class TestViewerCamera:
@@ -60,8 +66,9 @@ class TestPaths:
 
     def test_dataset_path_spreads_the_cameras(self, voxel_scene):
         views = first_per_camera(voxel_scene.test)
-        assert [c.center.tolist() for c in camera_path("dataset", voxel_scene, voxel_scene.test, None)] == \
-            [v.camera.center.tolist() for v in views]
+        assert [c.center.tolist() for c in camera_path("dataset", voxel_scene, voxel_scene.test, None)] == [
+            v.camera.center.tolist() for v in views
+        ]
         two = camera_path("dataset", voxel_scene, voxel_scene.test, 2)
         assert torch.equal(two[0].c2w, views[0].camera.c2w) and torch.equal(two[1].c2w, views[-1].camera.c2w)
 
@@ -87,11 +94,15 @@ class TestPaths:
 
     def test_spiral_of_forward_facing_cameras_circles_in_front(self, voxel_scene):
         """Cameras on a small patch all looking at the origin: the spiral stays near them."""
-        from dataclasses import replace  # noqa: PLC0415
+        from dataclasses import replace
 
-        views = [replace(voxel_scene.train[0], camera=replace(voxel_scene.train[0].camera,
-                                                               c2w=look_at(torch.tensor([3.0, dx, dz]), torch.zeros(3))))
-                 for dx, dz in ((0.0, 0.0), (0.3, 0.0), (0.0, 0.3), (-0.3, -0.2))]
+        views = [
+            replace(
+                voxel_scene.train[0],
+                camera=replace(voxel_scene.train[0].camera, c2w=look_at(torch.tensor([3.0, dx, dz]), torch.zeros(3))),
+            )
+            for dx, dz in ((0.0, 0.0), (0.3, 0.0), (0.0, 0.3), (-0.3, -0.2))
+        ]
         views = [replace(v, view_id=i) for i, v in enumerate(views)]
         path = camera_path("spiral", voxel_scene, views, 12)
         assert all(abs(c.center[0].item() - 3.0) < 0.3 and c.center[1:].norm() < 0.6 for c in path)

@@ -8,9 +8,9 @@ import torch
 from mono_hdr_plugin.apps.display import aces_filmic, colour_depth, exposed_hdr, needs_render_at, to_display
 from mono_hdr_plugin.core.colour import srgb_decode, srgb_encode
 from mono_hdr_plugin.core.exposure import choose_reference
+from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.training.frames import ExposureModel, fit_display_scale
 from mono_hdr_plugin.training.pipeline import Frame
-from mono_hdr_plugin.core.metrics import normalise_hdr
 
 MONO = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=False, ldr_exposures=(2.0,))
 CRF = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=True)
@@ -32,7 +32,9 @@ class TestCurves:
 
     def test_aces_fit_known_values(self):
         # x = 1: 2.54 / 3.16; x = 0.18 (mid grey) by hand; saturates to 1
-        expected = torch.tensor([0.0, 0.18 * (2.51 * 0.18 + 0.03) / (0.18 * (2.43 * 0.18 + 0.59) + 0.14), 2.54 / 3.16, 1.0])
+        expected = torch.tensor(
+            [0.0, 0.18 * (2.51 * 0.18 + 0.03) / (0.18 * (2.43 * 0.18 + 0.59) + 0.14), 2.54 / 3.16, 1.0]
+        )
         torch.testing.assert_close(aces_filmic(torch.tensor([0.0, 0.18, 1.0, 1000.0])), expected, atol=1e-6, rtol=0)
 
     def test_reference_exposure_is_the_middle_training_exposure(self):

@@ -7,25 +7,37 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import train_model
 from plyfile import PlyData
 
 from backbones.gs import GaussianBackbone, GaussianConfig, load_ply
 from backbones.nerf import GridFieldConfig, NerfConfig
-from conftest import train_model
-from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.apps.cli import main
-from mono_hdr_plugin.apps.export import (converters_paths, export_splats, load_converters, load_point_cloud, point_cloud,
-                                    points_from_depth, write_point_cloud)
+from mono_hdr_plugin.apps.export import (
+    converters_paths,
+    export_splats,
+    load_converters,
+    load_point_cloud,
+    point_cloud,
+    points_from_depth,
+    write_point_cloud,
+)
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.training.pipeline import Pipeline
 
 # The vertex properties of a degree-3 3DGS PLY, in the order the reference implementation writes them.
-STANDARD_3DGS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
-                 + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+STANDARD_3DGS = (
+    ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    + [f"f_rest_{i}" for i in range(45)]
+    + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+)
 
 # sha256 of the HDR recipe each method's export has written since the recipes were written (the text
 # now lives in the method: MonoHDR.hdr_recipe, CrfBaseline.hdr_recipe).
-RECIPE_SHA256 = {"mono": "df62fc5e88797c1128601329d77cfb8e9025b20649dc8eb6c50fd48b9ce5211c",
-                 "hdr-gs": "bcf7749a32dbb1774664068586e636b6f2c6a27cf1a12721771de97596385eed"}
+RECIPE_SHA256 = {
+    "mono": "df62fc5e88797c1128601329d77cfb8e9025b20649dc8eb6c50fd48b9ce5211c",
+    "hdr-gs": "bcf7749a32dbb1774664068586e636b6f2c6a27cf1a12721771de97596385eed",
+}
 
 
 @pytest.fixture(scope="module", params=["mono", "hdr-gs"])
@@ -103,9 +115,20 @@ class TestPointCloud:
         torch.testing.assert_close(points[:, 2], torch.full((63,), 3.0))
 
     def test_nerf_point_cloud_round_trips(self, tmp_path, voxel_scene):
-        config = NerfConfig(field=GridFieldConfig(
-            levels=2, min_resolution=4, max_resolution=8, hidden_width=16, min_step=0.125, max_samples_per_ray=16,
-            occupancy_resolution=8, occupancy_update_every=2, rays_per_step=64, samples_per_step=512))
+        config = NerfConfig(
+            field=GridFieldConfig(
+                levels=2,
+                min_resolution=4,
+                max_resolution=8,
+                hidden_width=16,
+                min_step=0.125,
+                max_samples_per_ray=16,
+                occupancy_resolution=8,
+                occupancy_update_every=2,
+                rays_per_step=64,
+                samples_per_step=512,
+            )
+        )
         _, model = train_model(tmp_path, voxel_scene, "nerf", config, steps=6)
         points, colours, hdr = point_cloud(model, min_alpha=0.0)
         assert points.shape == (4 * 16 * 16, 3)  # four training views, every ray kept at min_alpha 0

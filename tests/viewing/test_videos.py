@@ -3,15 +3,14 @@
 import imageio.v2 as imageio
 import numpy as np
 import pytest
-import torch
-
 import register_backbone  # noqa: F401 - registers voxel-grid for the command line
+
 from mono_hdr_plugin.apps.camera_paths import camera_path
 from mono_hdr_plugin.apps.cli import main
-from mono_hdr_plugin.data.config import DataConfig
-from mono_hdr_plugin.data.loading import load_scene
-from mono_hdr_plugin.data.io import read_exr, read_image
 from mono_hdr_plugin.apps.render import even_sized, render_exposure_sweep, render_path
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.io import read_exr, read_image
+from mono_hdr_plugin.data.loading import load_scene
 
 
 def video_frames(path) -> list[np.ndarray]:
@@ -42,8 +41,14 @@ class TestExposureSweep:
     @pytest.mark.parametrize("output", ["ldr", "hdr-srgb", "hdr-filmic", "hdr-mulaw"])
     def test_monotonic_in_brightness(self, voxel_mono, tmp_path, output):
         evs = np.linspace(-6, 6, 13).tolist()
-        images = render_exposure_sweep(voxel_mono, voxel_mono.scene.test[0].camera, evs, tmp_path / "sweep.mp4",
-                                       tmp_path / "strip.png", output=output)
+        images = render_exposure_sweep(
+            voxel_mono,
+            voxel_mono.scene.test[0].camera,
+            evs,
+            tmp_path / "sweep.mp4",
+            tmp_path / "strip.png",
+            output=output,
+        )
         brightness = [float(image.mean()) for image in images]
         assert all(b >= a for a, b in zip(brightness, brightness[1:])), brightness
         assert brightness[-1] > brightness[0] + 50
@@ -72,20 +77,53 @@ def demo():
 
 class TestRenderCommand:
     def test_path_video(self, checkpoint, demo, tmp_path):
-        main(["render", "--checkpoint", str(checkpoint), "--path", "interpolate", "--frames", "6", "--scale", "0.5",
-              "--video", str(tmp_path / "glide.mp4"), "--exr-frames", str(tmp_path / "exr"), "--output", "hdr-srgb"])
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(checkpoint),
+                "--path",
+                "interpolate",
+                "--frames",
+                "6",
+                "--scale",
+                "0.5",
+                "--video",
+                str(tmp_path / "glide.mp4"),
+                "--exr-frames",
+                str(tmp_path / "exr"),
+                "--output",
+                "hdr-srgb",
+            ]
+        )
         frames = video_frames(tmp_path / "glide.mp4")
         half = demo.train[0].camera.width // 2
         assert len(frames) == 6 and frames[0].shape == (half, half, 3)
         assert len(list((tmp_path / "exr").glob("*.exr"))) == 6
 
     def test_dataset_path_has_one_frame_per_camera(self, checkpoint, demo, tmp_path):
-        main(["render", "--checkpoint", str(checkpoint), "--path", "dataset", "--out", str(tmp_path), "--scale", "0.25"])
+        main(
+            ["render", "--checkpoint", str(checkpoint), "--path", "dataset", "--out", str(tmp_path), "--scale", "0.25"]
+        )
         assert len(video_frames(tmp_path / "path_dataset.mp4")) == len({view.view_id for view in demo.test})
 
     def test_sweep(self, checkpoint, demo, tmp_path):
-        main(["render", "--checkpoint", str(checkpoint), "--sweep", "--frames", "5", "--view", "2", "--out", str(tmp_path),
-              "--scale", "0.5"])
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(checkpoint),
+                "--sweep",
+                "--frames",
+                "5",
+                "--view",
+                "2",
+                "--out",
+                str(tmp_path),
+                "--scale",
+                "0.5",
+            ]
+        )
         half = demo.train[0].camera.width // 2
         assert len(video_frames(tmp_path / "exposure_sweep.mp4")) == 5
         assert read_image(tmp_path / "exposure_sweep.png").shape == (half + 14, 5 * (half + 2) - 2, 3)

@@ -4,17 +4,17 @@ import urllib.request
 
 import pytest
 import torch
-
 from conftest import train_model
+
 from mono_hdr_plugin.apps.camera_paths import ViewerCamera, viewer_from_camera
 from mono_hdr_plugin.apps.display import to_uint8
-from mono_hdr_plugin.core.colour import srgb_encode
-from mono_hdr_plugin.core.metrics import hdr_metrics
-from mono_hdr_plugin.training.pipeline import RenderCancelled
 from mono_hdr_plugin.apps.viewer.gui import Viewer
 from mono_hdr_plugin.apps.viewer.live_training import SnapshotPublisher
 from mono_hdr_plugin.apps.viewer.renderer import ViewerRenderer, letterbox
 from mono_hdr_plugin.apps.viewer.snapshots import ModelSnapshots
+from mono_hdr_plugin.core.colour import srgb_encode
+from mono_hdr_plugin.core.metrics import hdr_metrics
+from mono_hdr_plugin.training.pipeline import RenderCancelled
 
 # A browser camera: 10 degrees above the rig's plane, a wide 4:3 canvas.
 BROWSER = ViewerCamera(wxyz=(0.2, -0.1, 0.6, 0.77), position=(0.0, -2.8, 0.9), fov=0.9, aspect=4 / 3)
@@ -64,7 +64,9 @@ class TestRenderFunction:
         camera = browser_camera(voxel_mono.scene)
         shown = renderer.render(camera, 12, "ldr", 0.0)
         expected = reference(voxel_mono, renderer.camera(camera, 12), 0.5).ldr
-        assert (torch.from_numpy(shown.image).int() - torch.from_numpy(to_uint8(expected.clamp(0, 1))).int()).abs().max() == 0
+        assert (
+            torch.from_numpy(shown.image).int() - torch.from_numpy(to_uint8(expected.clamp(0, 1))).int()
+        ).abs().max() == 0
 
     def test_learned_camera_response_follows_the_exposure(self, voxel_crf):
         """HDR-NeRF's LDR at t is its CRF applied at t: the viewer re-renders at each exposure."""
@@ -76,7 +78,9 @@ class TestRenderFunction:
             exposure = 0.5 * 2**ev
             assert shown.frame.exposure == exposure
             expected = reference(voxel_crf, renderer.camera(camera, 12), exposure).ldr
-            assert (torch.from_numpy(shown.image).int() - torch.from_numpy(to_uint8(expected.clamp(0, 1))).int()).abs().max() == 0
+            assert (
+                torch.from_numpy(shown.image).int() - torch.from_numpy(to_uint8(expected.clamp(0, 1))).int()
+            ).abs().max() == 0
             images[ev] = shown.image
         assert (images[2.0] != images[-2.0]).any()
 
@@ -118,8 +122,7 @@ class TestSnapshots:
             assert torch.equal(before, after)
             snapshots.publish(pipeline, step=4)
             assert snapshots.latest().version == 1 and snapshots.latest().step == 4
-            assert not torch.equal(snapshots.latest().pipeline.render(camera, 0.5).hdr,
-                                   before)
+            assert not torch.equal(snapshots.latest().pipeline.render(camera, 0.5).hdr, before)
         finally:
             with torch.no_grad():
                 backbone.color_logits.copy_(saved)
@@ -127,7 +130,7 @@ class TestSnapshots:
     def test_training_with_a_watching_viewer_learns_the_same_model(self, tmp_path, voxel_scene, voxel_backbone_config):
         """The publisher copies the model while someone watches; training itself is unchanged."""
         plain, _ = train_model(tmp_path / "plain", voxel_scene, "voxel-grid", voxel_backbone_config, steps=6)
-        from mono_hdr_plugin.training.trainer import Trainer  # noqa: PLC0415
+        from mono_hdr_plugin.training.trainer import Trainer
 
         watched = Trainer(plain.config, "voxel-grid", voxel_scene)
         watched.config.out = tmp_path / "watched"

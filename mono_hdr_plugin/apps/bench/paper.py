@@ -20,27 +20,48 @@ from typing import Annotated, Any, ClassVar, Literal
 import tyro
 
 from mono_hdr_plugin.apps.bench.report import fmt, pyplot, report_on_exit
-from mono_hdr_plugin.apps.bench.runs import (ExecutorConfig, RowStore, RunBudget, RunSpec, console, execute,
-                                        paper_backbones, parse_presets)
+from mono_hdr_plugin.apps.bench.runs import (
+    ExecutorConfig,
+    RowStore,
+    RunBudget,
+    RunSpec,
+    console,
+    execute,
+    paper_backbones,
+    parse_presets,
+)
 from mono_hdr_plugin.core.registry import get_backbone, register_benchmark
 from mono_hdr_plugin.core.validation import POSITIVE, SEED, FlagError, at_least, between
 
 # The paper's figures (docs/method.md), HDR PSNR in dB, by the paper's backbone rows; a registered
 # backbone reproduces a row through its `paper_backbone`. The ablations are the paper's 3DGS ones.
 PAPER_BASELINE = {"NeRF": "hdr-nerf", "3DGS": "hdr-gs"}
-PAPER_TABLE1 = {("NeRF", "hdr-nerf"): 13.76, ("NeRF", "mono"): 32.86, ("3DGS", "hdr-gs"): 35.30,
-                ("3DGS", "mono"): 38.57}
-PAPER_TABLE1_LDR = {("NeRF", "hdr-nerf"): 30.62, ("NeRF", "mono"): 38.78, ("3DGS", "hdr-gs"): 39.48,
-                    ("3DGS", "mono"): 41.68}
+PAPER_TABLE1 = {
+    ("NeRF", "hdr-nerf"): 13.76,
+    ("NeRF", "mono"): 32.86,
+    ("3DGS", "hdr-gs"): 35.30,
+    ("3DGS", "mono"): 38.57,
+}
+PAPER_TABLE1_LDR = {
+    ("NeRF", "hdr-nerf"): 30.62,
+    ("NeRF", "mono"): 38.78,
+    ("3DGS", "hdr-gs"): 39.48,
+    ("3DGS", "mono"): 41.68,
+}
 PAPER_CONVERTERS = {"mlp-l2h": 19.02, "mlp-h2l": 38.43, "no-h2l": 38.19, "mono": 38.57}
 LOSS_ROWS = {  # name -> (L_ldr, L_hdr, L_h2l), paper figure (None: "fails to train", no figure)
-    "ldr": ((True, False, False), None), "hdr": ((False, True, False), 33.93),
-    "h2l": ((False, False, True), 11.87), "ldr+hdr": ((True, True, False), 38.19),
-    "ldr+h2l": ((True, False, True), 13.50), "hdr+h2l": ((False, True, True), 33.58),
+    "ldr": ((True, False, False), None),
+    "hdr": ((False, True, False), 33.93),
+    "h2l": ((False, False, True), 11.87),
+    "ldr+hdr": ((True, True, False), 38.19),
+    "ldr+h2l": ((True, False, True), 13.50),
+    "hdr+h2l": ((False, True, True), 33.58),
     "ldr+hdr+h2l": ((True, True, True), 38.57),
 }
-PAPER_RATIOS = {"mono": {"1:1": 38.57, "2:1": 37.97, "3:1": 37.53, "5:1": 35.51, "0:1": 33.93, "1:0": 13.50},
-                "hdr-gs": {"1:1": 35.30, "2:1": 35.26, "3:1": 35.16, "5:1": 34.89, "0:1": 33.46, "1:0": 10.51}}
+PAPER_RATIOS = {
+    "mono": {"1:1": 38.57, "2:1": 37.97, "3:1": 37.53, "5:1": 35.51, "0:1": 33.93, "1:0": 13.50},
+    "hdr-gs": {"1:1": 35.30, "2:1": 35.26, "3:1": 35.16, "5:1": 34.89, "0:1": 33.46, "1:0": 10.51},
+}
 # The fair-recipe table tunes these method settings for every method alike, times the backbone's
 # own `tuning_space()`: every method gets the same number of trials.
 METHOD_TUNING_SPACE = {"hdr.converter_lr": (5e-4, 2e-3)}
@@ -89,9 +110,15 @@ class BenchPaperConfig:
     executor: Annotated[ExecutorConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExecutorConfig)
     """Where the runs execute."""
 
-    flag_rules: ClassVar = {"exposure_indices": between(0, 2), "seeds": SEED, "ablation_seeds": SEED,
-                            "budget_seconds": POSITIVE, "steps": at_least(1), "eval_points": at_least(1),
-                            "max_eval_views": at_least(1)}
+    flag_rules: ClassVar = {
+        "exposure_indices": between(0, 2),
+        "seeds": SEED,
+        "ablation_seeds": SEED,
+        "budget_seconds": POSITIVE,
+        "steps": at_least(1),
+        "eval_points": at_least(1),
+        "max_eval_views": at_least(1),
+    }
 
     def run(self) -> dict[str, Any]:
         return bench_paper(self)
@@ -100,9 +127,20 @@ class BenchPaperConfig:
         """--quick applied."""
         if not self.quick:
             return self
-        return BenchPaperConfig(out=self.out, scenes=("demo",), exposure_indices=(1,), seeds=(0, 1),
-                                ablation_seeds=(0,), budget_seconds=None, steps=20, eval_points=1,
-                                max_eval_views=2, tables=("table1",), presets=self.presets, executor=self.executor)
+        return BenchPaperConfig(
+            out=self.out,
+            scenes=("demo",),
+            exposure_indices=(1,),
+            seeds=(0, 1),
+            ablation_seeds=(0,),
+            budget_seconds=None,
+            steps=20,
+            eval_points=1,
+            max_eval_views=2,
+            tables=("table1",),
+            presets=self.presets,
+            executor=self.executor,
+        )
 
 
 @dataclass(frozen=True)
@@ -118,8 +156,12 @@ class Variant:
     scenes: tuple[str, ...] = ()
 
     def runs(self, exposures: tuple[int, ...]) -> list[RunSpec]:
-        return [RunSpec(**{**self.spec.__dict__, "scene": scene, "exposure_index": exposure, "seed": seed})
-                for scene in self.scenes for exposure in exposures for seed in self.seeds]
+        return [
+            RunSpec(**{**self.spec.__dict__, "scene": scene, "exposure_index": exposure, "seed": seed})
+            for scene in self.scenes
+            for exposure in exposures
+            for seed in self.seeds
+        ]
 
 
 def table_variants(config: BenchPaperConfig) -> list[Variant]:
@@ -132,9 +174,21 @@ def table_variants(config: BenchPaperConfig) -> list[Variant]:
 
     variants = []
     if "table1" in config.tables or "recipes" in config.tables:  # the recipe table's shared-recipe rows
-        variants += [Variant("table1", f"{row} {method}", spec(row, method), PAPER_TABLE1[(row, method)],
-                             PAPER_TABLE1_LDR[(row, method)], config.seeds, config.scenes)
-                     for row in PAPER_BASELINE if row in backbones for method in (PAPER_BASELINE[row], "mono")]
+        variants += [
+            Variant(
+                "table1",
+                f"{row} {method}",
+                spec(row, method),
+                PAPER_TABLE1[(row, method)],
+                PAPER_TABLE1_LDR[(row, method)],
+                config.seeds,
+                config.scenes,
+            )
+            for row in PAPER_BASELINE
+            if row in backbones
+            for method in (PAPER_BASELINE[row], "mono")
+        ]
+
     def ablation(table: str, name: str, row_spec: RunSpec, figure: float | None) -> Variant:
         return Variant(table, name, row_spec, figure, seeds=config.ablation_seeds, scenes=ablation_scenes)
 
@@ -142,11 +196,16 @@ def table_variants(config: BenchPaperConfig) -> list[Variant]:
         if "converters" in config.tables:
             variants += [ablation("converters", m, spec("3DGS", m), PAPER_CONVERTERS[m]) for m in PAPER_CONVERTERS]
         if "losses" in config.tables:
-            variants += [ablation("losses", name, spec("3DGS", "mono", losses=switches), figure)
-                         for name, (switches, figure) in LOSS_ROWS.items()]
+            variants += [
+                ablation("losses", name, spec("3DGS", "mono", losses=switches), figure)
+                for name, (switches, figure) in LOSS_ROWS.items()
+            ]
         if "ratios" in config.tables:
-            variants += [ablation("ratios", f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r])
-                         for m in ("mono", "hdr-gs") for r in PAPER_RATIOS[m]]
+            variants += [
+                ablation("ratios", f"{m} {r}", spec("3DGS", m, hdr_view_ratio=r), PAPER_RATIOS[m][r])
+                for m in ("mono", "hdr-gs")
+                for r in PAPER_RATIOS[m]
+            ]
     return variants
 
 
@@ -163,41 +222,67 @@ def tuning_trials(config: BenchPaperConfig) -> dict[tuple[str, str], list[RunSpe
         space |= METHOD_TUNING_SPACE
         grid = [tuple(zip(space, values)) for values in itertools.product(*space.values())]
         for method in (PAPER_BASELINE[row], "mono"):
-            trials[(row, method)] = [RunSpec(backbone, method, preset=presets.get(backbone), scene=config.tune_scene,
-                                             exposure_index=config.exposure_indices[len(config.exposure_indices) // 2],
-                                             overrides=overrides) for overrides in grid]
+            trials[(row, method)] = [
+                RunSpec(
+                    backbone,
+                    method,
+                    preset=presets.get(backbone),
+                    scene=config.tune_scene,
+                    exposure_index=config.exposure_indices[len(config.exposure_indices) // 2],
+                    overrides=overrides,
+                )
+                for overrides in grid
+            ]
     return trials
 
 
 def bench_paper(config: BenchPaperConfig) -> dict[str, Any]:
     config = config.resolved()
-    budget = RunBudget(seconds=config.budget_seconds, steps=config.steps, eval_points=config.eval_points,
-                       max_eval_views=config.max_eval_views)
+    budget = RunBudget(
+        seconds=config.budget_seconds,
+        steps=config.steps,
+        eval_points=config.eval_points,
+        max_eval_views=config.max_eval_views,
+    )
     variants = table_variants(config)
     trials = tuning_trials(config) if "recipes" in config.tables else {}
     report_scenes = tuple(s for s in config.scenes if s != config.tune_scene)
     if trials and not report_scenes:
-        raise FlagError(f"the recipe table reports on scenes other than --tune-scene {config.tune_scene!r}: "
-                         "add another scene to --scenes")
+        raise FlagError(
+            f"the recipe table reports on scenes other than --tune-scene {config.tune_scene!r}: "
+            "add another scene to --scenes"
+        )
     specs = list(dict.fromkeys(spec for v in variants for spec in v.runs(config.exposure_indices)))
     trial_specs = [spec for specs_of in trials.values() for spec in specs_of]
     settings = {"budget": budget.__dict__, "exposure_indices": list(config.exposure_indices)}
     store = RowStore(config.out / "paper.json", settings)
-    planned = len(specs) + len(trial_specs) + len(trials) * len(report_scenes) * len(config.exposure_indices) * len(
-        config.seeds)
+    planned = (
+        len(specs)
+        + len(trial_specs)
+        + len(trials) * len(report_scenes) * len(config.exposure_indices) * len(config.seeds)
+    )
     cpus = config.executor.cpus_per_run or (1 if config.executor.executor == "ray" else 2)
     if budget.seconds is not None:
-        console.print(f"bench paper: {planned} runs x {budget.seconds:.0f} s x {cpus} CPU = "
-                      f"{planned * budget.seconds * cpus / 3600:.1f} CPU-hours of training (plus evaluation)")
+        console.print(
+            f"bench paper: {planned} runs x {budget.seconds:.0f} s x {cpus} CPU = "
+            f"{planned * budget.seconds * cpus / 3600:.1f} CPU-hours of training (plus evaluation)"
+        )
     recipes: dict[tuple[str, str], dict] = {}
     with report_on_exit(lambda: write_paper_report(config, variants, recipes, store)):
         execute(specs + trial_specs, budget, store, config.out / "runs", config.executor)
         if trials:
             recipes.update(best_recipes(trials, store))
-            best_variants = [Variant("recipes", f"{row} {method} tuned", recipe["spec"], seeds=config.seeds,
-                                     scenes=report_scenes) for (row, method), recipe in recipes.items()]
-            execute([s for v in best_variants for s in v.runs(config.exposure_indices)], budget, store,
-                    config.out / "runs", config.executor)
+            best_variants = [
+                Variant("recipes", f"{row} {method} tuned", recipe["spec"], seeds=config.seeds, scenes=report_scenes)
+                for (row, method), recipe in recipes.items()
+            ]
+            execute(
+                [s for v in best_variants for s in v.runs(config.exposure_indices)],
+                budget,
+                store,
+                config.out / "runs",
+                config.executor,
+            )
     return {"facts": store.facts, "rows": store.rows, "recipes": recipes}
 
 
@@ -205,24 +290,35 @@ def best_recipes(trials: dict[tuple[str, str], list[RunSpec]], store: RowStore) 
     """The trial with the highest HDR PSNR (own max, the paper's headline metric) of each method."""
     best = {}
     for key, specs in trials.items():
-        scored = [(store.rows[s.key]["final"]["hdr_psnr"], s) for s in specs
-                  if store.rows.get(s.key, {}).get("status") == "ok"]
+        scored = [
+            (store.rows[s.key]["final"]["hdr_psnr"], s)
+            for s in specs
+            if store.rows.get(s.key, {}).get("status") == "ok"
+        ]
         if scored:
             score, spec = max(scored, key=lambda item: item[0])
-            best[key] = {"spec": RunSpec(**{**spec.__dict__, "scene": "", "exposure_index": 0}),
-                         "overrides": dict(spec.overrides), "tune_hdr_psnr": score, "trials": len(specs)}
+            best[key] = {
+                "spec": RunSpec(**{**spec.__dict__, "scene": "", "exposure_index": 0}),
+                "overrides": dict(spec.overrides),
+                "tune_hdr_psnr": score,
+                "trials": len(specs),
+            }
     return best
 
 
 # ----------------------------------------------------------------------------- aggregation
-def seed_values(variant: Variant, store: RowStore, exposures: tuple[int, ...], metric: str,
-                scenes: tuple[str, ...] | None = None) -> dict[int, float]:
+def seed_values(
+    variant: Variant, store: RowStore, exposures: tuple[int, ...], metric: str, scenes: tuple[str, ...] | None = None
+) -> dict[int, float]:
     """seed -> the metric averaged over `scenes` (default: the variant's) and the exposures; seeds
     with a failed or missing run are left out."""
     values = {}
     for seed in variant.seeds:
-        runs = [store.rows.get(RunSpec(**{**variant.spec.__dict__, "scene": s, "exposure_index": e, "seed": seed}).key)
-                for s in (scenes or variant.scenes) for e in exposures]
+        runs = [
+            store.rows.get(RunSpec(**{**variant.spec.__dict__, "scene": s, "exposure_index": e, "seed": seed}).key)
+            for s in (scenes or variant.scenes)
+            for e in exposures
+        ]
         finished = [r for r in runs if r is not None and r["status"] == "ok" and r["final"][metric] is not None]
         if runs and len(finished) == len(runs):
             values[seed] = statistics.fmean(r["final"][metric] for r in finished)
@@ -250,13 +346,20 @@ def summarise(variants: list[Variant], store: RowStore, exposures: tuple[int, ..
     """Per variant: mean +- spread of each metric averaged over its scenes, and per scene HDR PSNR."""
     rows = []
     for variant in variants:
-        row: dict[str, Any] = {"table": variant.table, "variant": variant.name, "backbone": variant.spec.backbone,
-                               "paper_hdr_psnr": variant.paper_hdr_psnr, "paper_ldr_psnr": variant.paper_ldr_psnr,
-                               "seeds": len(variant.seeds), "scenes": list(variant.scenes)}
+        row: dict[str, Any] = {
+            "table": variant.table,
+            "variant": variant.name,
+            "backbone": variant.spec.backbone,
+            "paper_hdr_psnr": variant.paper_hdr_psnr,
+            "paper_ldr_psnr": variant.paper_ldr_psnr,
+            "seeds": len(variant.seeds),
+            "scenes": list(variant.scenes),
+        }
         for metric in METRICS:
             row[metric] = mean_spread(seed_values(variant, store, exposures, metric))
-        row["per_scene_hdr_psnr"] = {scene: mean_spread(seed_values(variant, store, exposures, "hdr_psnr", (scene,)))
-                                     for scene in variant.scenes}
+        row["per_scene_hdr_psnr"] = {
+            scene: mean_spread(seed_values(variant, store, exposures, "hdr_psnr", (scene,))) for scene in variant.scenes
+        }
         rows.append(row)
     return rows
 
@@ -267,8 +370,13 @@ def orderings(rows: list[dict[str, Any]]) -> list[tuple[str, str, str]]:
     verdicts = []
     for a, b in itertools.combinations(usable, 2):
         if a["paper_hdr_psnr"] != b["paper_hdr_psnr"]:
-            verdicts.append((a["variant"], b["variant"],
-                             ordering(a["hdr_psnr"], b["hdr_psnr"], a["paper_hdr_psnr"], b["paper_hdr_psnr"])))
+            verdicts.append(
+                (
+                    a["variant"],
+                    b["variant"],
+                    ordering(a["hdr_psnr"], b["hdr_psnr"], a["paper_hdr_psnr"], b["paper_hdr_psnr"]),
+                )
+            )
     return verdicts
 
 
@@ -282,27 +390,38 @@ def write_paper_report(config: BenchPaperConfig, variants: list[Variant], recipe
     exposures = config.exposure_indices
     rows = summarise(variants, store, exposures)
     budget = store.settings["budget"]
-    lines = [f"git {store.facts['git_commit'][:10]}; budget per run: "
-             f"{fmt(budget['seconds'], 0)} s / {budget['steps'] or '-'} steps; exposures "
-             f"{', '.join(f't{2 * e + 1}' for e in exposures)} averaged; mean +- standard deviation over seeds. "
-             "An ordering is reproduced when its sign matches the paper's and the gap exceeds the sum of "
-             "the two spreads (tie: within them; reversed: beyond them, the other way).", ""]
+    lines = [
+        f"git {store.facts['git_commit'][:10]}; budget per run: "
+        f"{fmt(budget['seconds'], 0)} s / {budget['steps'] or '-'} steps; exposures "
+        f"{', '.join(f't{2 * e + 1}' for e in exposures)} averaged; mean +- standard deviation over seeds. "
+        "An ordering is reproduced when its sign matches the paper's and the gap exceeds the sum of "
+        "the two spreads (tie: within them; reversed: beyond them, the other way).",
+        "",
+    ]
     for table in dict.fromkeys(v.table for v in variants):
         table_rows = [r for r in rows if r["table"] == table]
         scenes = table_rows[0]["scenes"]
-        lines += [f"### {table} (scenes: {', '.join(scenes)}; {table_rows[0]['seeds']} seed(s))", "",
-                  "| variant | HDR PSNR | paper HDR PSNR | HDR PSNR (GT max) | HDR SSIM | LDR PSNR | LDR SSIM | "
-                  + " | ".join(f"HDR PSNR {s}" for s in scenes) + " |",
-                  "|---" * (7 + len(scenes)) + "|"]
+        lines += [
+            f"### {table} (scenes: {', '.join(scenes)}; {table_rows[0]['seeds']} seed(s))",
+            "",
+            "| variant | HDR PSNR | paper HDR PSNR | HDR PSNR (GT max) | HDR SSIM | LDR PSNR | LDR SSIM | "
+            + " | ".join(f"HDR PSNR {s}" for s in scenes)
+            + " |",
+            "|---" * (7 + len(scenes)) + "|",
+        ]
         for r in table_rows:
-            lines.append(f"| {r['variant']} | {_pm(r['hdr_psnr'])} | {fmt(r['paper_hdr_psnr'])} | "
-                         f"{_pm(r['hdr_psnr_gt_max'])} | {_pm(r['hdr_ssim'], 3)} | {_pm(r['ldr_psnr'])} | "
-                         f"{_pm(r['ldr_ssim'], 3)} | "
-                         + " | ".join(_pm(r["per_scene_hdr_psnr"][s]) for s in scenes) + " |")
+            lines.append(
+                f"| {r['variant']} | {_pm(r['hdr_psnr'])} | {fmt(r['paper_hdr_psnr'])} | "
+                f"{_pm(r['hdr_psnr_gt_max'])} | {_pm(r['hdr_ssim'], 3)} | {_pm(r['ldr_psnr'])} | "
+                f"{_pm(r['ldr_ssim'], 3)} | " + " | ".join(_pm(r["per_scene_hdr_psnr"][s]) for s in scenes) + " |"
+            )
         verdicts = orderings(table_rows)
         counts = {v: sum(1 for *_, verdict in verdicts if verdict == v) for v in ("reproduced", "tie", "reversed")}
-        lines += ["", f"Orderings against the paper's: {counts['reproduced']} reproduced, {counts['tie']} ties, "
-                      f"{counts['reversed']} reversed of {len(verdicts)} pairs."]
+        lines += [
+            "",
+            f"Orderings against the paper's: {counts['reproduced']} reproduced, {counts['tie']} ties, "
+            f"{counts['reversed']} reversed of {len(verdicts)} pairs.",
+        ]
         lines += [f"- {a} vs {b}: {verdict}" for a, b, verdict in verdicts if verdict != "reproduced"]
         lines.append("")
     if recipes:
@@ -314,30 +433,37 @@ def write_paper_report(config: BenchPaperConfig, variants: list[Variant], recipe
     table1 = [r for r in rows if r["table"] == "table1"]
     if table1 and any(r["hdr_psnr"][0] is not None for r in table1):
         plot_table1(table1, config.out / "paper_table1.png")
-        plot_table1_curves([v for v in variants if v.table == "table1"], store, exposures,
-                           config.out / "paper_curves.png")
+        plot_table1_curves(
+            [v for v in variants if v.table == "table1"], store, exposures, config.out / "paper_curves.png"
+        )
 
 
 def recipe_lines(config: BenchPaperConfig, variants: list[Variant], recipes: dict, store: RowStore) -> list[str]:
     """Shared CPU recipe against each method's own tuned recipe, on the scenes it was NOT tuned on."""
     exposures = config.exposure_indices
     report_scenes = tuple(s for s in config.scenes if s != config.tune_scene)
-    lines = [f"### recipes: shared CPU recipe vs each method's own best (tuned on {config.tune_scene}, "
-             f"reported on {', '.join(report_scenes)})", "",
-             "| backbone method | trials | tuned settings | HDR PSNR shared | HDR PSNR own | LDR PSNR shared | "
-             "LDR PSNR own |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"### recipes: shared CPU recipe vs each method's own best (tuned on {config.tune_scene}, "
+        f"reported on {', '.join(report_scenes)})",
+        "",
+        "| backbone method | trials | tuned settings | HDR PSNR shared | HDR PSNR own | LDR PSNR shared | "
+        "LDR PSNR own |",
+        "|---|---|---|---|---|---|---|",
+    ]
     table1 = {v.name: v for v in variants if v.table == "table1"}
     for (row, method), recipe in recipes.items():
         shared = table1.get(f"{row} {method}")
         tuned = Variant("recipes", "", recipe["spec"], seeds=config.seeds, scenes=report_scenes)
         cells = []
         for metric in ("hdr_psnr", "ldr_psnr"):
-            cells.append(_pm(mean_spread(seed_values(shared, store, exposures, metric, report_scenes)))
-                         if shared else "n/a")
+            cells.append(
+                _pm(mean_spread(seed_values(shared, store, exposures, metric, report_scenes))) if shared else "n/a"
+            )
             cells.append(_pm(mean_spread(seed_values(tuned, store, exposures, metric))))
         settings = ", ".join(f"{path}={value:g}" for path, value in recipe["overrides"].items())
-        lines.append(f"| {row} {method} | {recipe['trials']} | {settings} | {cells[0]} | {cells[1]} | {cells[2]} | "
-                     f"{cells[3]} |")
+        lines.append(
+            f"| {row} {method} | {recipe['trials']} | {settings} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |"
+        )
     return lines + [""]
 
 
@@ -346,13 +472,21 @@ def plot_table1(rows: list[dict], path: Path) -> None:
     plt = pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(10, 4))
     names = [r["variant"] for r in rows]
-    for axis, metric, paper_key, title in ((axes[0], "hdr_psnr", "paper_hdr_psnr", "HDR PSNR (dB, mu-law, own max)"),
-                                           (axes[1], "ldr_psnr", "paper_ldr_psnr", "LDR PSNR (dB)")):
+    for axis, metric, paper_key, title in (
+        (axes[0], "hdr_psnr", "paper_hdr_psnr", "HDR PSNR (dB, mu-law, own max)"),
+        (axes[1], "ldr_psnr", "paper_ldr_psnr", "LDR PSNR (dB)"),
+    ):
         means = [r[metric][0] if r[metric][0] is not None else math.nan for r in rows]
         spreads = [r[metric][1] or 0.0 for r in rows]
         axis.bar(range(len(rows)), means, yerr=spreads, capsize=4, color="#4c72b0", label="this code")
-        axis.scatter(range(len(rows)), [r[paper_key] for r in rows], color="#dd8452", marker="D", zorder=3,
-                     label="paper (GPU, 30k / 200k steps)")
+        axis.scatter(
+            range(len(rows)),
+            [r[paper_key] for r in rows],
+            color="#dd8452",
+            marker="D",
+            zorder=3,
+            label="paper (GPU, 30k / 200k steps)",
+        )
         axis.set_xticks(range(len(rows)), names, rotation=20, fontsize=8)
         axis.set_title(title)
         axis.grid(axis="y", alpha=0.3)
@@ -367,8 +501,11 @@ def plot_table1_curves(variants: list[Variant], store: RowStore, exposures: tupl
     plt = pyplot()
     figure, axis = plt.subplots(figsize=(6.5, 4))
     for variant in variants:
-        curves = [store.rows[s.key]["curve"] for s in variant.runs(exposures)
-                  if store.rows.get(s.key, {}).get("status") == "ok"]
+        curves = [
+            store.rows[s.key]["curve"]
+            for s in variant.runs(exposures)
+            if store.rows.get(s.key, {}).get("status") == "ok"
+        ]
         if not curves:
             continue
         length = min(len(c) for c in curves)

@@ -2,8 +2,8 @@
 
 import contextlib
 import math
-from collections.abc import Iterator
-from typing import Any, Callable
+from collections.abc import Callable, Iterator
+from typing import Any
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
@@ -17,10 +17,10 @@ def label(spec: dict[str, Any]) -> str:
 
 def pyplot():
     """matplotlib's pyplot on the file-only Agg backend (no display on these machines)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     return plt
 

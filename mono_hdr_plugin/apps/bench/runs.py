@@ -17,27 +17,37 @@ import statistics
 import subprocess
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 import torch
 from rich.console import Console
 from rich.progress import Progress
 
+from mono_hdr_plugin.core.registry import BACKBONES, get_backbone
+from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, FlagError, at_least, check_flags, one_of
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.methods.base import MethodConfig
-from mono_hdr_plugin.core.registry import BACKBONES, get_backbone
-from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, FlagError, at_least, check_flags, one_of
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.hooks import TrainingHook
 from mono_hdr_plugin.training.trainer import Trainer
 
 console = Console()
-CURVE_KEYS = ("steps", "train_seconds", "hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr",
-              "ldr_ssim", "ldr_psnr_per_exposure")
+CURVE_KEYS = (
+    "steps",
+    "train_seconds",
+    "hdr_psnr",
+    "hdr_ssim",
+    "hdr_psnr_gt_max",
+    "hdr_ssim_gt_max",
+    "ldr_psnr",
+    "ldr_ssim",
+    "ldr_psnr_per_exposure",
+)
 
 
 @dataclass(frozen=True)
@@ -74,8 +84,12 @@ class RunBudget:
     """Evaluations spread evenly along the run (in seconds when timed, else in steps); the last is the result."""
     max_eval_views: int | None = None
 
-    flag_rules: ClassVar = {"seconds": POSITIVE, "steps": at_least(1), "eval_points": at_least(1),
-                            "max_eval_views": at_least(1)}
+    flag_rules: ClassVar = {
+        "seconds": POSITIVE,
+        "steps": at_least(1),
+        "eval_points": at_least(1),
+        "max_eval_views": at_least(1),
+    }
 
     def __post_init__(self):
         if self.seconds is None and self.steps is None:
@@ -98,24 +112,35 @@ def parse_presets(pairs: tuple[str, ...]) -> dict[str, str]:
     for pair in pairs:
         backbone, _, preset = pair.partition("=")
         if preset not in get_backbone(backbone).presets():
-            raise FlagError(f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
-                             f"{', '.join(get_backbone(backbone).presets())}")
+            raise FlagError(
+                f"--presets {pair!r}: backbone {backbone!r} has no preset {preset!r}; choose one of "
+                f"{', '.join(get_backbone(backbone).presets())}"
+            )
         presets[backbone] = preset
     return presets
 
 
 def run_facts() -> dict[str, Any]:
     """Git commit, machine and library versions, stored with every result file."""
-    import numpy  # noqa: PLC0415
+    import numpy
 
     try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
-                                cwd=Path(__file__).parent).stdout.strip()
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
-    return {"git_commit": commit, "machine": platform.machine(), "processor": platform.processor(),
-            "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-            "torch": torch.__version__, "numpy": numpy.__version__, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    return {
+        "git_commit": commit,
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
 
 
 def peak_memory_mib() -> float:
@@ -126,7 +151,7 @@ def peak_memory_mib() -> float:
 @functools.lru_cache(maxsize=8)
 def cached_scene(name: str, exposure_index: int) -> SceneData:
     """Scenes loaded once per process for all the rows that use them."""
-    from mono_hdr_plugin.data.loading import load_scene  # noqa: PLC0415
+    from mono_hdr_plugin.data.loading import load_scene
 
     return load_scene(DataConfig(scene=name, exposure_index=exposure_index))
 
@@ -150,8 +175,10 @@ def set_override(config: Any, path: str, value: Any) -> None:
     for depth, part in enumerate([*parents, name]):
         names = [f.name for f in dataclasses.fields(target)] if dataclasses.is_dataclass(target) else []
         if part not in names:
-            raise ValueError(f"override {path!r}: {type(target).__name__} has no field {part!r}"
-                             + (f" (its fields: {', '.join(names)})" if names else ""))
+            raise ValueError(
+                f"override {path!r}: {type(target).__name__} has no field {part!r}"
+                + (f" (its fields: {', '.join(names)})" if names else "")
+            )
         if depth < len(parents):
             target = getattr(target, part)
     setattr(target, name, value)
@@ -163,11 +190,20 @@ def build_run(spec: RunSpec, scene: SceneData, out: Path, budget: RunBudget) -> 
     presets = backbone_class.presets()
     use_ldr, use_hdr, use_h2l = spec.losses
     config = train_config_for(backbone_class.config_class)(
-        backbone=dataclasses.replace(presets[spec.preset or next(iter(presets))]), preset=spec.preset,
-        max_steps=budget.steps or 10**9, max_seconds=budget.seconds, out=out, quiet=True, save_renders=False,
-        checkpoint_every=10**9, max_eval_views=budget.max_eval_views, hdr_view_ratio=spec.hdr_view_ratio,
-        seed=spec.seed, data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index),
-        hdr=MethodConfig(method=spec.method, use_ldr_loss=use_ldr, use_hdr_loss=use_hdr, use_h2l_loss=use_h2l))
+        backbone=dataclasses.replace(presets[spec.preset or next(iter(presets))]),
+        preset=spec.preset,
+        max_steps=budget.steps or 10**9,
+        max_seconds=budget.seconds,
+        out=out,
+        quiet=True,
+        save_renders=False,
+        checkpoint_every=10**9,
+        max_eval_views=budget.max_eval_views,
+        hdr_view_ratio=spec.hdr_view_ratio,
+        seed=spec.seed,
+        data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index),
+        hdr=MethodConfig(method=spec.method, use_ldr_loss=use_ldr, use_hdr_loss=use_hdr, use_h2l_loss=use_h2l),
+    )
     for path, value in spec.overrides:
         set_override(config, path, value)
     return Trainer(config, spec.backbone, scene)
@@ -183,8 +219,11 @@ class EvaluateAlong(TrainingHook):
     def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
         fraction = (len(self.curve) + 1) / self.points
         budget = trainer.config.max_seconds
-        due = trainer.train_seconds >= budget * fraction if budget is not None else \
-            trainer.step >= trainer.config.max_steps * fraction
+        due = (
+            trainer.train_seconds >= budget * fraction
+            if budget is not None
+            else trainer.step >= trainer.config.max_steps * fraction
+        )
         if due or trainer.finished:
             metrics = trainer.evaluate()
             self.curve.append({key: metrics.get(key) for key in CURVE_KEYS})
@@ -228,10 +267,19 @@ def run_row(spec: RunSpec, budget: RunBudget, out: str, threads: int | None = No
         curve = EvaluateAlong(budget.eval_points)
         trainer.fit([curve])
         fps_ldr, fps_ldr_hdr = render_fps(trainer)
-        return {"key": spec.key, "spec": dataclasses.asdict(spec), "status": "ok", "curve": curve.curve,
-                "final": curve.curve[-1], "mean_step_seconds": trainer.train_seconds / max(trainer.step, 1),
-                "fps_ldr": fps_ldr, "fps_ldr_hdr": fps_ldr_hdr, "backbone_statistics": trainer.backbone.statistics(),
-                "peak_memory_mib": peak_memory_mib(), "threads": torch.get_num_threads()}
+        return {
+            "key": spec.key,
+            "spec": dataclasses.asdict(spec),
+            "status": "ok",
+            "curve": curve.curve,
+            "final": curve.curve[-1],
+            "mean_step_seconds": trainer.train_seconds / max(trainer.step, 1),
+            "fps_ldr": fps_ldr,
+            "fps_ldr_hdr": fps_ldr_hdr,
+            "backbone_statistics": trainer.backbone.statistics(),
+            "peak_memory_mib": peak_memory_mib(),
+            "threads": torch.get_num_threads(),
+        }
     finally:  # the sequential executor runs rows in the caller's process: leave its threads as they were
         torch.set_num_threads(caller_threads)
 
@@ -239,8 +287,13 @@ def run_row(spec: RunSpec, budget: RunBudget, out: str, threads: int | None = No
 def failed_row(spec: RunSpec, error: BaseException | str, attempts: int) -> dict[str, Any]:
     """The record of a row that kept failing: never dropped, its error kept."""
     message = error if isinstance(error, str) else "".join(traceback.format_exception_only(error)).strip()
-    return {"key": spec.key, "spec": dataclasses.asdict(spec), "status": "failed", "error": message,
-            "attempts": attempts}
+    return {
+        "key": spec.key,
+        "spec": dataclasses.asdict(spec),
+        "status": "failed",
+        "error": message,
+        "attempts": attempts,
+    }
 
 
 @dataclass
@@ -286,12 +339,21 @@ class ExecutorConfig:
     retries: int = 1
     """A row that raises is tried again this many times, then recorded as failed with its error."""
 
-    flag_rules: ClassVar = {"executor": one_of("sequential", "ray"), "cpus_per_run": at_least(1),
-                            "retries": NON_NEGATIVE}
+    flag_rules: ClassVar = {
+        "executor": one_of("sequential", "ray"),
+        "cpus_per_run": at_least(1),
+        "retries": NON_NEGATIVE,
+    }
 
 
-def execute(specs: list[RunSpec], budget: RunBudget, store: RowStore, runs_dir: Path, executor: ExecutorConfig,
-            on_row: Callable[[dict], None] = lambda row: None) -> None:
+def execute(
+    specs: list[RunSpec],
+    budget: RunBudget,
+    store: RowStore,
+    runs_dir: Path,
+    executor: ExecutorConfig,
+    on_row: Callable[[dict], None] = lambda row: None,
+) -> None:
     """Run every spec not finished in `store`, recording each row (or its failure) as it ends."""
     check_flags(executor)  # an executor built by a script, not a command's checked config
     pending = [spec for spec in specs if not store.done(spec)]
@@ -303,8 +365,11 @@ def _run_sequential(specs, budget, store, runs_dir, executor, on_row) -> None:
     with Progress(console=console) as progress:
         task = progress.add_task("benchmark rows", total=len(specs))
         for spec in specs:
-            progress.update(task, description=f"{spec.backbone}/{spec.method} {spec.scene} t{2 * spec.exposure_index + 1} "
-                                              f"seed {spec.seed}")
+            progress.update(
+                task,
+                description=f"{spec.backbone}/{spec.method} {spec.scene} t{2 * spec.exposure_index + 1} "
+                f"seed {spec.seed}",
+            )
             row = _run_with_retries(spec, budget, runs_dir, executor)
             store.add(row)
             on_row(row)
@@ -326,12 +391,16 @@ def _run_with_retries(spec: RunSpec, budget: RunBudget, runs_dir: Path, executor
 
 def _run_ray(specs, budget, store, runs_dir, executor, on_row) -> None:
     try:
-        import ray  # noqa: PLC0415
+        import ray
     except ImportError as error:
         raise ValueError("--executor ray needs Ray: pip install -e '.[distributed]' (or pip install ray)") from error
     cpus = executor.cpus_per_run or 1
-    ray.init(address=executor.address, ignore_reinit_error=True, log_to_driver=False,
-             runtime_env={"env_vars": {"OMP_NUM_THREADS": str(cpus)}})
+    ray.init(
+        address=executor.address,
+        ignore_reinit_error=True,
+        log_to_driver=False,
+        runtime_env={"env_vars": {"OMP_NUM_THREADS": str(cpus)}},
+    )
     remote = ray.remote(run_row).options(num_cpus=cpus, max_retries=executor.retries, retry_exceptions=True)
     futures = {remote.remote(spec, budget, str(runs_dir), cpus): spec for spec in specs}
     with Progress(console=console) as progress:

@@ -75,14 +75,20 @@ def add_seconds(parser: argparse.ArgumentParser, default: float, flag: str = "--
 
 def add_threads(parser: argparse.ArgumentParser, default: int | None = None) -> None:
     """--threads: torch threads (default: torch's own count)."""
-    parser.add_argument("--threads", type=COUNT,
-                        default=torch.get_num_threads() if default is None else default, help="torch threads")
+    parser.add_argument(
+        "--threads", type=COUNT, default=torch.get_num_threads() if default is None else default, help="torch threads"
+    )
 
 
 def add_overrides(parser: argparse.ArgumentParser) -> None:
     """--set KEY=VALUE ...: dotted config paths set on top of the preset (read with `overrides`)."""
-    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="overrides of the run's config, e.g. backbone.field.color_activation=sigmoid")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="overrides of the run's config, e.g. backbone.field.color_activation=sigmoid",
+    )
 
 
 def overrides(texts: Sequence[str], prefix: str = "") -> tuple[Override, ...]:
@@ -92,8 +98,12 @@ def overrides(texts: Sequence[str], prefix: str = "") -> tuple[Override, ...]:
 
 def add_variants(parser: argparse.ArgumentParser, example: str) -> None:
     """--variant (repeatable): 'base' or 'name=value,name=value' (read with `variant_overrides`)."""
-    parser.add_argument("--variant", action="append", default=None,
-                        help=f"'base' or name=value,... overrides (e.g. {example}); repeat for more; default: base")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=None,
+        help=f"'base' or name=value,... overrides (e.g. {example}); repeat for more; default: base",
+    )
 
 
 def variant_overrides(text: str, prefix: str = "") -> tuple[Override, ...]:

@@ -12,9 +12,17 @@ from mono_hdr_plugin.apps.process_data.config import ProcessDataConfig
 from mono_hdr_plugin.apps.process_data.photos import StagedPhoto, photo_pixels
 from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord
 from mono_hdr_plugin.data.errors import DatasetError
-from mono_hdr_plugin.data.photos.brackets import (BracketCandidate, aligned_members, brightness_order,
-                                                  detect_brackets, estimate_relative_exposures, merge_bracket,
-                                                  recover_response, response_sample, same_exposure)
+from mono_hdr_plugin.data.photos.brackets import (
+    BracketCandidate,
+    aligned_members,
+    brightness_order,
+    detect_brackets,
+    estimate_relative_exposures,
+    merge_bracket,
+    recover_response,
+    response_sample,
+    same_exposure,
+)
 from mono_hdr_plugin.data.photos.raw import RawResponse, decode
 
 RELIABLE_POINTS = 0.5
@@ -33,8 +41,9 @@ class BracketPlan:
     """The member whose LDR photo is the view: placed, and as bright as the capture's single photos."""
 
 
-def find_bracket_plans(config: ProcessDataConfig, photos: list[PhotoRecord], staged: list[StagedPhoto], model,
-                       console: Console) -> tuple[list[BracketPlan], list[str]]:
+def find_bracket_plans(
+    config: ProcessDataConfig, photos: list[PhotoRecord], staged: list[StagedPhoto], model, console: Console
+) -> tuple[list[BracketPlan], list[str]]:
     """The bracket sets to merge and notes on members left out; none with --no-brackets or from a video."""
     if not config.brackets or config.video is not None:  # a video has no brackets; close frames are not one
         return [], []
@@ -63,11 +72,16 @@ def bracket_candidates(photos: list[PhotoRecord], staged: list[StagedPhoto], mod
     candidates = []
     for photo, stage in zip(photos, staged):
         image = poses.get(photo.name)
-        candidates.append(BracketCandidate(
-            name=photo.source, exposure=photo.exposure, timestamp=stage.exif.timestamp,
-            auto_bracket=stage.exif.auto_bracket,
-            center=None if image is None else np.asarray(image.projection_center()),
-            rotation=None if image is None else np.asarray(_cam_from_world(image).rotation.matrix()).T))
+        candidates.append(
+            BracketCandidate(
+                name=photo.source,
+                exposure=photo.exposure,
+                timestamp=stage.exif.timestamp,
+                auto_bracket=stage.exif.auto_bracket,
+                center=None if image is None else np.asarray(image.projection_center()),
+                rotation=None if image is None else np.asarray(_cam_from_world(image).rotation.matrix()).T,
+            )
+        )
     return candidates
 
 
@@ -81,8 +95,13 @@ def response_curve(name: RawResponse) -> np.ndarray:
     return np.stack([decode(np.linspace(0, 1, 256), name)] * 3, -1)
 
 
-def plan_brackets(sets: list[list[int]], photos: list[PhotoRecord], staged: list[StagedPhoto],
-                  raw_response: RawResponse, console: Console) -> tuple[list[BracketPlan], list[str]]:
+def plan_brackets(
+    sets: list[list[int]],
+    photos: list[PhotoRecord],
+    staged: list[StagedPhoto],
+    raw_response: RawResponse,
+    console: Console,
+) -> tuple[list[BracketPlan], list[str]]:
     """Bracket plans of the sets that have a placed photo, and notes on members left out.
 
     Members whose pixels do not line up with their neighbours' are left out (a placed one becomes
@@ -104,15 +123,18 @@ def plan_brackets(sets: list[list[int]], photos: list[PhotoRecord], staged: list
     return plans, notes
 
 
-def plan_bracket(members: list[int], photos: list[PhotoRecord], staged: list[StagedPhoto], raw_response: RawResponse,
-                 typical: float) -> tuple[BracketPlan | None, list[str]]:
+def plan_bracket(
+    members: list[int], photos: list[PhotoRecord], staged: list[StagedPhoto], raw_response: RawResponse, typical: float
+) -> tuple[BracketPlan | None, list[str]]:
     """The plan of one set with a placed member (None when what is left has one exposure), and a note
     naming the members that do not line up. `typical`: the brightness the set's view should have."""
     placed = [k for k, i in enumerate(members) if photos[i].registered]
     names = [photos[i].source for i in members]
     if len({staged[i].raw for i in members}) > 1:
-        raise DatasetError(f"{', '.join(names)}: this bracket mixes RAW and JPEG/PNG/TIFF photos; shoot the "
-                           "bracket in one format, or pass --no-brackets")
+        raise DatasetError(
+            f"{', '.join(names)}: this bracket mixes RAW and JPEG/PNG/TIFF photos; shoot the "
+            "bracket in one format, or pass --no-brackets"
+        )
     response = None if staged[members[0]].raw else response_curve("srgb")
     samples = []
     for i in members:
@@ -125,8 +147,16 @@ def plan_bracket(members: list[int], photos: list[PhotoRecord], staged: list[Sta
     start = min(placed, key=lambda k: abs(order.index(k) - len(order) // 2))
     kept = aligned_members(samples, order, start, response)
     dropped = [names[k] for k in range(len(members)) if k not in kept]
-    notes = [(f"{', '.join(dropped)}: do not line up with the other photos of their bracket "
-              f"({', '.join(names[k] for k in kept)}) and are left out of its merge")] if dropped else []
+    notes = (
+        [
+            (
+                f"{', '.join(dropped)}: do not line up with the other photos of their bracket "
+                f"({', '.join(names[k] for k in kept)}) and are left out of its merge"
+            )
+        ]
+        if dropped
+        else []
+    )
     if known:
         exposures = [times[k] for k in kept]
     else:
@@ -134,12 +164,14 @@ def plan_bracket(members: list[int], photos: list[PhotoRecord], staged: list[Sta
     if len(kept) < 2 or all(same_exposure(e, exposures[0]) for e in exposures):
         return None, notes  # one viewpoint photographed several times at one exposure: single views
     view = min((k for k in kept if k in placed), key=lambda k: abs(staged[members[k]].brightness - typical))
-    return BracketPlan(members=[members[k] for k in kept], exposures=exposures, estimated=not known,
-                       view=members[view]), notes
+    return BracketPlan(
+        members=[members[k] for k in kept], exposures=exposures, estimated=not known, view=members[view]
+    ), notes
 
 
-def bracket_response(plans: list[BracketPlan], staged: list[StagedPhoto], raw_response: RawResponse,
-                     console: Console) -> tuple[np.ndarray | None, str | None]:
+def bracket_response(
+    plans: list[BracketPlan], staged: list[StagedPhoto], raw_response: RawResponse, console: Console
+) -> tuple[np.ndarray | None, str | None]:
     """The camera response [256, 3] of the JPEG brackets (Debevec), or of the RAW photos' chosen curve."""
     coded = [plan for plan in plans if not staged[plan.members[0]].raw]
     if coded:
@@ -164,17 +196,29 @@ def mark_views(photos: list[PhotoRecord], plans: list[BracketPlan]) -> list[HdrV
         for i, exposure in zip(plan.members, plan.exposures):
             photos[i].bracket, photos[i].bracket_exposure = number, exposure / darkest
         photos[plan.view].view = True
-        hdr_views.append(HdrView(name=photos[plan.view].name, sources=[photos[i].source for i in plan.members],
-                                 exposures=list(plan.exposures), exposures_estimated=plan.estimated))
+        hdr_views.append(
+            HdrView(
+                name=photos[plan.view].name,
+                sources=[photos[i].source for i in plan.members],
+                exposures=list(plan.exposures),
+                exposures_estimated=plan.estimated,
+            )
+        )
     return hdr_views
 
 
-def merge_plan(plan: BracketPlan, staged: list[StagedPhoto], response: np.ndarray | None,
-               raw_response: RawResponse, sources: list[str]) -> np.ndarray:
+def merge_plan(
+    plan: BracketPlan,
+    staged: list[StagedPhoto],
+    response: np.ndarray | None,
+    raw_response: RawResponse,
+    sources: list[str],
+) -> np.ndarray:
     """The linear HDR [H, W, 3] of one planned set: RAW members merge their linear pixels (no response
     needed), the others their code values through the camera `response`."""
     pixels = [photo_pixels(staged[i], raw_response) for i in plan.members]
     images = [linear if linear is not None else encoded for encoded, linear in pixels]
     darkest = min(plan.exposures)
-    return merge_bracket(images, [e / darkest for e in plan.exposures],
-                         None if staged[plan.members[0]].raw else response, sources)
+    return merge_bracket(
+        images, [e / darkest for e in plan.exposures], None if staged[plan.members[0]].raw else response, sources
+    )

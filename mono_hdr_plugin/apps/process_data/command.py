@@ -32,8 +32,9 @@ def process_data(config: ProcessDataConfig, console: Console | None = None) -> P
     return report
 
 
-def build_dataset(config: ProcessDataConfig, csv_table: dict[str, float], work: Path, dataset: Path,
-                  console: Console) -> ProcessReport:
+def build_dataset(
+    config: ProcessDataConfig, csv_table: dict[str, float], work: Path, dataset: Path, console: Console
+) -> ProcessReport:
     """Photos and exposures, poses, brackets, the layout in `dataset` (scratch files in `work`); the report."""
     sources, ignored, video = find_inputs(config, work / "frames", console)
     staged, size = stage_photos(sources, work, config.raw_response, console)
@@ -46,8 +47,7 @@ def build_dataset(config: ProcessDataConfig, csv_table: dict[str, float], work: 
     notes = check_registered(config, photos, reconstruction.groups, merged=merged)
     response, response_source = bracket_response(plans, staged, config.raw_response, console)
     hdr_views = mark_views(photos, plans)
-    report = write_dataset(config, reconstruction, photos, staged, plans, hdr_views, response, work, dataset,
-                           console)
+    report = write_dataset(config, reconstruction, photos, staged, plans, hdr_views, response, work, dataset, console)
     report.reference_iso, report.reference_f_number = reference["iso"], reference["f_number"]
     report.response, report.ignored, report.video = response_source, ignored, video
     report.warnings = notes + bracket_notes + exposure_warnings(photos, reference)

@@ -62,8 +62,13 @@ class ProcessDataConfig:
     """CPU threads for structure from motion (-1: all)."""
 
     # Every N-th view is held out, so N >= 2; the others are fractions of frames or photos.
-    flag_rules: ClassVar = {"fps": POSITIVE, "min_sharpness": between(0, 1, high_open=True), "exposure": POSITIVE,
-                            "test_every": at_least(2), "min_registered": between(0, 1, low_open=True)}
+    flag_rules: ClassVar = {
+        "fps": POSITIVE,
+        "min_sharpness": between(0, 1, high_open=True),
+        "exposure": POSITIVE,
+        "test_every": at_least(2),
+        "min_registered": between(0, 1, low_open=True),
+    }
 
 
 def check_config(config: ProcessDataConfig) -> None:
@@ -83,10 +88,12 @@ def check_output(config: ProcessDataConfig) -> None:
     if config.out.exists() and not config.out.is_dir():
         raise DatasetError(f"{config.out}: is a file; --out must be a folder to create")
     if config.out.exists() and any(config.out.iterdir()) and not config.overwrite:
-        raise DatasetError(f"{config.out}: already exists and is not empty; pass --overwrite to replace it "
-                           "or choose another --out")
+        raise DatasetError(
+            f"{config.out}: already exists and is not empty; pass --overwrite to replace it or choose another --out"
+        )
     if config.images is not None and config.out.resolve() == config.images.resolve():
         raise FlagError("--out must differ from --images: the photos would be replaced")
     # --out is replaced as a whole: only a dataset process-data wrote, never one holding the inputs.
-    check_replaceable(config.out, config.out / REPORT_FILE, [config.images, config.exposure_csv],
-                      "process-data --overwrite replaces")
+    check_replaceable(
+        config.out, config.out / REPORT_FILE, [config.images, config.exposure_csv], "process-data --overwrite replaces"
+    )

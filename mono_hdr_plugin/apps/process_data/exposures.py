@@ -45,8 +45,9 @@ def _number(value) -> float | None:
     return number if math.isfinite(number) else None
 
 
-def relative_exposure(time: float, iso: float, f_number: float, reference_iso: float,
-                      reference_f_number: float) -> float:
+def relative_exposure(
+    time: float, iso: float, f_number: float, reference_iso: float, reference_f_number: float
+) -> float:
     """Exposure time that collects the same light at the reference ISO and aperture.
 
     Sensor signal is proportional to t * ISO / N^2, so t * (ISO / ISO_ref) * (N_ref / N)^2.
@@ -67,13 +68,20 @@ def reference_settings(exifs: list[PhotoExif]) -> dict:
     """{"iso", "f_number"}: the most common value of each among the timed photos, None when it does not vary."""
     timed = [exif for exif in exifs if exif.exposure_time is not None]
     isos, f_numbers = {e.iso for e in timed if e.iso}, {e.f_number for e in timed if e.f_number}
-    return {"iso": _most_common([e.iso for e in timed]) if len(isos) > 1 else None,
-            "f_number": _most_common([e.f_number for e in timed]) if len(f_numbers) > 1 else None}
+    return {
+        "iso": _most_common([e.iso for e in timed]) if len(isos) > 1 else None,
+        "f_number": _most_common([e.f_number for e in timed]) if len(f_numbers) > 1 else None,
+    }
 
 
-def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict[str, float],
-                     flag: float | None, csv_path: Path | None = None,
-                     raw: list[bool] | None = None) -> tuple[list[tuple[float | None, ExposureSource]], dict]:
+def assign_exposures(
+    sources: list[str],
+    exifs: list[PhotoExif],
+    csv_table: dict[str, float],
+    flag: float | None,
+    csv_path: Path | None = None,
+    raw: list[bool] | None = None,
+) -> tuple[list[tuple[float | None, ExposureSource]], dict]:
     """(seconds or None, source) per photo and the reference ISO/aperture used when those vary.
 
     EXIF (or RAW metadata) first, then the CSV row, then --exposure (checked by the flag rules).
@@ -85,8 +93,10 @@ def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict
     raw = raw or [False] * len(sources)
     unknown = sorted(set(csv_table) - set(sources))
     if unknown:
-        raise DatasetError(f"{csv_path}: rows for photos that are not in --images: {', '.join(unknown[:5])}; "
-                           "fix the file names in the CSV")
+        raise DatasetError(
+            f"{csv_path}: rows for photos that are not in --images: {', '.join(unknown[:5])}; "
+            "fix the file names in the CSV"
+        )
     reference = reference_settings(exifs)
     # A setting that does not vary is left out (ratio exactly 1); a photo missing a varying one
     # is assumed to have the reference value (exposure_warnings says so).
@@ -97,8 +107,12 @@ def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict
         if exif.exposure_time is not None:
             iso = (exif.iso or iso_reference) if reference["iso"] else 1.0
             f_number = (exif.f_number or f_reference) if reference["f_number"] else 1.0
-            exposures.append((relative_exposure(exif.exposure_time, iso, f_number, iso_reference, f_reference),
-                              "raw" if is_raw_photo else "exif"))
+            exposures.append(
+                (
+                    relative_exposure(exif.exposure_time, iso, f_number, iso_reference, f_reference),
+                    "raw" if is_raw_photo else "exif",
+                )
+            )
         elif source in csv_table:
             exposures.append((csv_table[source], "csv"))
         elif flag is not None:
@@ -107,20 +121,33 @@ def assign_exposures(sources: list[str], exifs: list[PhotoExif], csv_table: dict
             exposures.append((None, "unknown"))
             lacking.append(source)
     if lacking and len(lacking) < len(sources):
-        raise DatasetError(f"{len(lacking)} photo(s) have no exposure time in their EXIF ({', '.join(lacking[:5])}"
-                           f"{', ...' if len(lacking) > 5 else ''}) while the others have one; pass --exposure "
-                           "SECONDS (one time for all) or --exposure-csv FILE with `file name,seconds` rows")
+        raise DatasetError(
+            f"{len(lacking)} photo(s) have no exposure time in their EXIF ({', '.join(lacking[:5])}"
+            f"{', ...' if len(lacking) > 5 else ''}) while the others have one; pass --exposure "
+            "SECONDS (one time for all) or --exposure-csv FILE with `file name,seconds` rows"
+        )
     return exposures, reference
 
 
-def photo_records(staged: list[StagedPhoto], csv_table: dict[str, float], flag: float | None,
-                  csv_path: Path | None) -> tuple[list[PhotoRecord], dict]:
+def photo_records(
+    staged: list[StagedPhoto], csv_table: dict[str, float], flag: float | None, csv_path: Path | None
+) -> tuple[list[PhotoRecord], dict]:
     """A record of each staged photo with its exposure; the reference ISO/aperture (assign_exposures)."""
-    exposures, reference = assign_exposures([s.source.name for s in staged], [s.exif for s in staged], csv_table,
-                                            flag, csv_path, [s.raw for s in staged])
-    photos = [PhotoRecord(source=stage.source.name, name=stage.name, exposure=time, exposure_source=origin,
-                          iso=stage.exif.iso, f_number=stage.exif.f_number, raw=stage.raw)
-              for stage, (time, origin) in zip(staged, exposures)]
+    exposures, reference = assign_exposures(
+        [s.source.name for s in staged], [s.exif for s in staged], csv_table, flag, csv_path, [s.raw for s in staged]
+    )
+    photos = [
+        PhotoRecord(
+            source=stage.source.name,
+            name=stage.name,
+            exposure=time,
+            exposure_source=origin,
+            iso=stage.exif.iso,
+            f_number=stage.exif.f_number,
+            raw=stage.raw,
+        )
+        for stage, (time, origin) in zip(staged, exposures)
+    ]
     return photos, reference
 
 
@@ -129,19 +156,31 @@ def exposure_warnings(photos: list[PhotoRecord], reference: dict) -> list[str]:
     exposure, a very wide range, folded ISO/aperture."""
     exposures = [photo.exposure for photo in photos if photo.view and photo.exposure is not None]
     if not exposures:
-        return ["no photo has an exposure time (EXIF, --exposure-csv, --exposure): they are written as unknown "
-                "and training learns them (--learn-exposure is on for this dataset)"]
+        return [
+            "no photo has an exposure time (EXIF, --exposure-csv, --exposure): they are written as unknown "
+            "and training learns them (--learn-exposure is on for this dataset)"
+        ]
     notes = []
     low, high = min(exposures), max(exposures)
     if math.isclose(low, high, rel_tol=1e-3):
-        notes.append(f"every photo has the same exposure ({low:.6g} s): the single-exposure setting "
-                     "Mono-HDR is made for; HDR is recovered up to one overall scale")
+        notes.append(
+            f"every photo has the same exposure ({low:.6g} s): the single-exposure setting "
+            "Mono-HDR is made for; HDR is recovered up to one overall scale"
+        )
     elif math.log2(high / low) > WIDE_RANGE_STOPS:
-        notes.append(f"exposures span {math.log2(high / low):.1f} stops ({low:.6g} s to {high:.6g} s), more "
-                     "than one sensor can hold: fine, but check the darkest and brightest photos are usable")
-    missing_settings = [p.source for p in photos if (reference["iso"] and p.iso is None and p.exposure_source == "exif")
-                        or (reference["f_number"] and p.f_number is None and p.exposure_source == "exif")]
+        notes.append(
+            f"exposures span {math.log2(high / low):.1f} stops ({low:.6g} s to {high:.6g} s), more "
+            "than one sensor can hold: fine, but check the darkest and brightest photos are usable"
+        )
+    missing_settings = [
+        p.source
+        for p in photos
+        if (reference["iso"] and p.iso is None and p.exposure_source == "exif")
+        or (reference["f_number"] and p.f_number is None and p.exposure_source == "exif")
+    ]
     if missing_settings:
-        notes.append(f"ISO or aperture varies but is missing in {', '.join(missing_settings[:5])}; the reference "
-                     "value was assumed for them")
+        notes.append(
+            f"ISO or aperture varies but is missing in {', '.join(missing_settings[:5])}; the reference "
+            "value was assumed for them"
+        )
     return notes

@@ -25,9 +25,18 @@ from mono_hdr_plugin.data.photos.brackets import dynamic_range_stops
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 
-def write_dataset(config: ProcessDataConfig, reconstruction: Reconstruction, photos: list[PhotoRecord],
-                  staged: list[StagedPhoto], plans: list[BracketPlan], hdr_views: list[HdrView],
-                  response: np.ndarray | None, work: Path, dataset: Path, console: Console) -> ProcessReport:
+def write_dataset(
+    config: ProcessDataConfig,
+    reconstruction: Reconstruction,
+    photos: list[PhotoRecord],
+    staged: list[StagedPhoto],
+    plans: list[BracketPlan],
+    hdr_views: list[HdrView],
+    response: np.ndarray | None,
+    work: Path,
+    dataset: Path,
+    console: Console,
+) -> ProcessReport:
     """images/, exr/, sparse/0, exposures.json, splits.json and camera_response.json; the report of them."""
     error = reconstruction.model.compute_mean_reprojection_error()
     model, grid = pinhole_model(reconstruction.model, photos, work, console)
@@ -35,9 +44,18 @@ def write_dataset(config: ProcessDataConfig, reconstruction: Reconstruction, pho
     write_hdr_views(config, plans, hdr_views, staged, response, grid, dataset, console)
     test_views = write_metadata(config, model, photos, response, dataset)
     camera = model.cameras[next(iter(model.cameras))]
-    return ProcessReport(out=config.out, photos=photos, camera_model=camera.model.name, width=camera.width,
-                         height=camera.height, matcher=reconstruction.matcher, mean_reprojection_error=error,
-                         num_points=model.num_points3D(), hdr_views=hdr_views, test_views=test_views)
+    return ProcessReport(
+        out=config.out,
+        photos=photos,
+        camera_model=camera.model.name,
+        width=camera.width,
+        height=camera.height,
+        matcher=reconstruction.matcher,
+        mean_reprojection_error=error,
+        num_points=model.num_points3D(),
+        hdr_views=hdr_views,
+        test_views=test_views,
+    )
 
 
 def pinhole_model(model, photos: list[PhotoRecord], work: Path, console: Console):
@@ -53,8 +71,14 @@ def pinhole_model(model, photos: list[PhotoRecord], work: Path, console: Console
     return model, pinhole_grid(distorted, camera)
 
 
-def write_images(config: ProcessDataConfig, photos: list[PhotoRecord], staged: list[StagedPhoto],
-                 grid: torch.Tensor | None, dataset: Path, console: Console) -> None:
+def write_images(
+    config: ProcessDataConfig,
+    photos: list[PhotoRecord],
+    staged: list[StagedPhoto],
+    grid: torch.Tensor | None,
+    dataset: Path,
+    console: Console,
+) -> None:
     """images/<view>.png: each view's LDR photo on the pinhole camera, downscaled (16-bit from RAW)."""
     views = [(photo, stage) for photo, stage in zip(photos, staged) if photo.view]
     for photo, stage in track(views, description="writing images", console=console):
@@ -63,9 +87,16 @@ def write_images(config: ProcessDataConfig, photos: list[PhotoRecord], staged: l
         write_png(dataset / "images" / photo.name, pixels, bits=16 if stage.raw else 8)
 
 
-def write_hdr_views(config: ProcessDataConfig, plans: list[BracketPlan], hdr_views: list[HdrView],
-                    staged: list[StagedPhoto], response: np.ndarray | None, grid: torch.Tensor | None,
-                    dataset: Path, console: Console) -> None:
+def write_hdr_views(
+    config: ProcessDataConfig,
+    plans: list[BracketPlan],
+    hdr_views: list[HdrView],
+    staged: list[StagedPhoto],
+    response: np.ndarray | None,
+    grid: torch.Tensor | None,
+    dataset: Path,
+    console: Console,
+) -> None:
     """exr/<view number>.exr: each bracket set merged, on the pinhole camera, downscaled; its dynamic range."""
     for plan, hdr_view in zip(plans, hdr_views):
         with console.status(f"merging {', '.join(hdr_view.sources)}"):
@@ -75,8 +106,9 @@ def write_hdr_views(config: ProcessDataConfig, plans: list[BracketPlan], hdr_vie
         write_exr(dataset / "exr" / f"{hdr_view.name.split('_')[0]}.exr", hdr)
 
 
-def write_metadata(config: ProcessDataConfig, model, photos: list[PhotoRecord], response: np.ndarray | None,
-                   dataset: Path) -> list[str]:
+def write_metadata(
+    config: ProcessDataConfig, model, photos: list[PhotoRecord], response: np.ndarray | None, dataset: Path
+) -> list[str]:
     """sparse/0 (intrinsics scaled to the images), exposures.json, splits.json, camera_response.json;
     the test views."""
     if config.downscale > 1:
@@ -87,8 +119,13 @@ def write_metadata(config: ProcessDataConfig, model, photos: list[PhotoRecord], 
     test_views = choose_test_views(photos, config.test_every)
     write_json(dataset / SPLITS_FILE, {"test": test_views})
     if response is not None:
-        write_json(dataset / RESPONSE_FILE, {"code_values": np.linspace(0, 1, len(response)).round(6).tolist(),
-                                             "linear_rgb": response.round(8).tolist()})
+        write_json(
+            dataset / RESPONSE_FILE,
+            {
+                "code_values": np.linspace(0, 1, len(response)).round(6).tolist(),
+                "linear_rgb": response.round(8).tolist(),
+            },
+        )
     return test_views
 
 
@@ -118,7 +155,7 @@ def pinhole_grid(distorted, pinhole) -> torch.Tensor | None:
     """
     if distorted.model.name in PINHOLE_MODELS:
         return None
-    rows, cols = np.mgrid[0:pinhole.height, 0:pinhole.width].astype(np.float64) + 0.5
+    rows, cols = np.mgrid[0 : pinhole.height, 0 : pinhole.width].astype(np.float64) + 0.5
     rays = pinhole.cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1))
     pixels = distorted.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], -1), check_cheirality=False)
     grid = pixels / np.array([distorted.width, distorted.height]) * 2 - 1
@@ -130,8 +167,7 @@ def remap(image: np.ndarray, grid: torch.Tensor | None) -> np.ndarray:
     if grid is None:
         return image
     pixels = torch.from_numpy(np.ascontiguousarray(image, np.float32)).permute(2, 0, 1)[None]
-    sampled = torch.nn.functional.grid_sample(pixels, grid, mode="bilinear", padding_mode="border",
-                                              align_corners=False)
+    sampled = torch.nn.functional.grid_sample(pixels, grid, mode="bilinear", padding_mode="border", align_corners=False)
     return sampled[0].permute(1, 2, 0).numpy()
 
 

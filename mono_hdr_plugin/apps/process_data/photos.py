@@ -24,16 +24,23 @@ MIN_IMAGES = 3
 """Structure from motion places no fewer photos than this."""
 
 
-def find_inputs(config: ProcessDataConfig, frames: Path,
-                console: Console) -> tuple[list[Path], list[str], VideoRecord | None]:
+def find_inputs(
+    config: ProcessDataConfig, frames: Path, console: Console
+) -> tuple[list[Path], list[str], VideoRecord | None]:
     """The photos of --images, or the frames of --video extracted into `frames`; the ignored files; the video."""
     if config.video is None:
         assert config.images is not None  # check_config requires one of --images and --video
         return (*find_photos(config.images), None)
-    kept, dropped = extract_frames(config.video, frames, config.fps, min_sharpness=config.min_sharpness,
-                                   console=console)
-    video = VideoRecord(source=str(config.video), fps=config.fps, candidates=len(kept) + len(dropped),
-                        kept=len(kept), dropped_times=[round(frame.time, 3) for frame in dropped])
+    kept, dropped = extract_frames(
+        config.video, frames, config.fps, min_sharpness=config.min_sharpness, console=console
+    )
+    video = VideoRecord(
+        source=str(config.video),
+        fps=config.fps,
+        candidates=len(kept) + len(dropped),
+        kept=len(kept),
+        dropped_times=[round(frame.time, 3) for frame in dropped],
+    )
     return (*find_photos(frames), video)
 
 
@@ -46,18 +53,27 @@ def find_photos(folder: Path) -> tuple[list[Path], list[str]]:
     if not folder.is_dir():
         raise missing(folder, "pass --images a folder of JPEG, PNG, TIFF or RAW photos")
     suffixes = PHOTO_SUFFIXES + RAW_SUFFIXES
-    found = sorted((path for path in folder.iterdir()
-                    if path.is_file() and path.suffix.lower() in suffixes and not path.name.startswith(".")),
-                   key=lambda path: natural_key(path.name))
+    found = sorted(
+        (
+            path
+            for path in folder.iterdir()
+            if path.is_file() and path.suffix.lower() in suffixes and not path.name.startswith(".")
+        ),
+        key=lambda path: natural_key(path.name),
+    )
     raw_stems = {path.stem for path in found if is_raw(path)}
     photos = [path for path in found if is_raw(path) or path.stem not in raw_stems]
     ignored = [path.name for path in found if path not in photos]
     if not photos:
-        raise DatasetError(f"{folder}: no photos found (looked for {', '.join(suffixes)}); "
-                           "point --images at the folder that holds the pictures")
+        raise DatasetError(
+            f"{folder}: no photos found (looked for {', '.join(suffixes)}); "
+            "point --images at the folder that holds the pictures"
+        )
     if len(photos) < MIN_IMAGES:
-        raise DatasetError(f"{folder}: only {len(photos)} photo(s); structure from motion needs at least "
-                           f"{MIN_IMAGES} overlapping photos, 20-100 around the scene work best")
+        raise DatasetError(
+            f"{folder}: only {len(photos)} photo(s); structure from motion needs at least "
+            f"{MIN_IMAGES} overlapping photos, 20-100 around the scene work best"
+        )
     return photos, ignored
 
 
@@ -79,8 +95,9 @@ def load_photo(path: Path) -> tuple[np.ndarray, PhotoExif]:
             else:
                 pixels = np.asarray(upright.convert("RGB"), np.float32) / 255.0
     except (OSError, UnidentifiedImageError, SyntaxError, ValueError) as error:
-        raise DatasetError(f"{path}: cannot read the photo ({error}); export it again or move it out "
-                           "of the folder") from error
+        raise DatasetError(
+            f"{path}: cannot read the photo ({error}); export it again or move it out of the folder"
+        ) from error
     return pixels, exif
 
 
@@ -107,8 +124,9 @@ def photo_pixels(photo: StagedPhoto, raw_response: RawResponse) -> tuple[np.ndar
     return load_photo(photo.source)[0], None
 
 
-def stage_photos(sources: list[Path], work: Path, raw_response: RawResponse,
-                 console: Console) -> tuple[list[StagedPhoto], tuple[int, int]]:
+def stage_photos(
+    sources: list[Path], work: Path, raw_response: RawResponse, console: Console
+) -> tuple[list[StagedPhoto], tuple[int, int]]:
     """8-bit upright copies `work/input/<index:03d>_0.png` (the HDR-GS naming) for structure from
     motion; the size.
 
@@ -133,7 +151,9 @@ def stage_photos(sources: list[Path], work: Path, raw_response: RawResponse,
         staged.append(stage)
         sizes.append((pixels.shape[1], pixels.shape[0]))
     if unreadable:
-        raise DatasetError(f"{len(unreadable)} photo(s) cannot be read; fix or remove them:\n  " + "\n  ".join(unreadable))
+        raise DatasetError(
+            f"{len(unreadable)} photo(s) cannot be read; fix or remove them:\n  " + "\n  ".join(unreadable)
+        )
     check_one_camera([s.source.name for s in staged], sizes, [s.exif for s in staged], sources[0].parent)
     return staged, sizes[0]
 
@@ -142,13 +162,18 @@ def check_one_camera(sources: list[str], sizes: list[tuple[int, int]], exifs: li
     """All photos must come from one camera at one size: one set of intrinsics is estimated."""
     by_size = Counter(sizes)
     if len(by_size) > 1:
-        listing = ", ".join(f"{count} at {w}x{h} (e.g. {sources[sizes.index((w, h))]})"
-                            for (w, h), count in by_size.most_common())
-        raise DatasetError(f"{folder}: photos of different sizes after EXIF orientation ({listing}); "
-                           "process one camera and one orientation at a time (move the others to another "
-                           "folder) or resize them to one size")
+        listing = ", ".join(
+            f"{count} at {w}x{h} (e.g. {sources[sizes.index((w, h))]})" for (w, h), count in by_size.most_common()
+        )
+        raise DatasetError(
+            f"{folder}: photos of different sizes after EXIF orientation ({listing}); "
+            "process one camera and one orientation at a time (move the others to another "
+            "folder) or resize them to one size"
+        )
     cameras = Counter(exif.camera for exif in exifs if exif.camera)
     if len(cameras) > 1:
         listing = ", ".join(f"{count} from {name!r}" for name, count in cameras.most_common())
-        raise DatasetError(f"{folder}: photos from several cameras ({listing}); one set of intrinsics is "
-                           "estimated per dataset: process each camera's photos in its own folder")
+        raise DatasetError(
+            f"{folder}: photos from several cameras ({listing}); one set of intrinsics is "
+            "estimated per dataset: process each camera's photos in its own folder"
+        )

@@ -63,8 +63,13 @@ class ProcessReport:
         return None if self.exposure_range is None else math.log2(self.exposure_range[1] / self.exposure_range[0])
 
     def to_json(self) -> dict:
-        return {**asdict(self), "out": str(self.out), "failed": self.failed, "exposure_range": self.exposure_range,
-                "exposures_known": self.exposures_known}
+        return {
+            **asdict(self),
+            "out": str(self.out),
+            "failed": self.failed,
+            "exposure_range": self.exposure_range,
+            "exposures_known": self.exposures_known,
+        }
 
 
 def _seconds(value: float | None) -> str:
@@ -78,28 +83,47 @@ def print_report(report: ProcessReport, console: Console) -> None:
         table.add_column(column)
     for photo in report.photos:
         bracket = "-" if photo.bracket is None else f"{photo.bracket} ({photo.bracket_exposure:.3g}x)"
-        table.add_row(photo.source, photo.name if photo.view else "-", _seconds(photo.exposure),
-                      photo.exposure_source, "yes" if photo.registered else "[red]no", bracket)
+        table.add_row(
+            photo.source,
+            photo.name if photo.view else "-",
+            _seconds(photo.exposure),
+            photo.exposure_source,
+            "yes" if photo.registered else "[red]no",
+            bracket,
+        )
     console.print(table)
     if report.video is not None:
         video = report.video
-        console.print(f"video {video.source}: kept {video.kept} of {video.candidates} candidate frames "
-                      f"({video.fps:g} per second, the sharpest of each three, blurred ones dropped)")
-    console.print(f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching), "
-                  f"{report.num_points} points, mean reprojection error {report.mean_reprojection_error:.3f} px")
-    exposures = ("exposures unknown (learned in training)" if report.exposure_range is None else
-                 f"exposures {report.exposure_range[0]:.6g} s to {report.exposure_range[1]:.6g} s "
-                 f"({report.exposure_stops:.1f} stops)")
+        console.print(
+            f"video {video.source}: kept {video.kept} of {video.candidates} candidate frames "
+            f"({video.fps:g} per second, the sharpest of each three, blurred ones dropped)"
+        )
+    console.print(
+        f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching), "
+        f"{report.num_points} points, mean reprojection error {report.mean_reprojection_error:.3f} px"
+    )
+    exposures = (
+        "exposures unknown (learned in training)"
+        if report.exposure_range is None
+        else f"exposures {report.exposure_range[0]:.6g} s to {report.exposure_range[1]:.6g} s "
+        f"({report.exposure_stops:.1f} stops)"
+    )
     console.print(f"camera {report.camera_model} {report.width}x{report.height}; {exposures}")
     if report.reference_iso or report.reference_f_number:
-        console.print(f"exposures are relative to ISO {report.reference_iso or '-'}, f/{report.reference_f_number or '-'}")
+        console.print(
+            f"exposures are relative to ISO {report.reference_iso or '-'}, f/{report.reference_f_number or '-'}"
+        )
     singles = len(report.views) - len(report.hdr_views)
-    console.print(f"{len(report.views)} views: {len(report.hdr_views)} HDR (merged brackets), {singles} single-exposure "
-                  f"LDR; {len(report.test_views)} held out for testing")
+    console.print(
+        f"{len(report.views)} views: {len(report.hdr_views)} HDR (merged brackets), {singles} single-exposure "
+        f"LDR; {len(report.test_views)} held out for testing"
+    )
     for hdr_view in report.hdr_views:
         how = "ratios measured from the pixels" if hdr_view.exposures_estimated else "exposures from metadata"
-        console.print(f"  HDR {hdr_view.name}: {len(hdr_view.sources)} photos ({how}), dynamic range "
-                      f"{hdr_view.dynamic_range_stops:.1f} stops")
+        console.print(
+            f"  HDR {hdr_view.name}: {len(hdr_view.sources)} photos ({how}), dynamic range "
+            f"{hdr_view.dynamic_range_stops:.1f} stops"
+        )
     if report.response:
         console.print(f"camera response: {report.response}")
     if report.ignored:

@@ -47,8 +47,9 @@ def choose_matcher(matcher: str, count: int) -> str:
     return "exhaustive" if count <= EXHAUSTIVE_LIMIT else "sequential"
 
 
-def run_sfm(config: ProcessDataConfig, image_dir: Path, names: list[str], work: Path, camera_params: str,
-            console: Console) -> Reconstruction:
+def run_sfm(
+    config: ProcessDataConfig, image_dir: Path, names: list[str], work: Path, camera_params: str, console: Console
+) -> Reconstruction:
     """Features, matches and incremental mapping of the photos `names` in `image_dir`."""
     import pycolmap
 
@@ -67,16 +68,18 @@ def run_sfm(config: ProcessDataConfig, image_dir: Path, names: list[str], work: 
     with console.status("incremental mapping"):
         models = pycolmap.incremental_mapping(database, image_dir, sparse, mapping)
     if not models:
-        raise DatasetError(f"{config.images or config.video}: structure from motion placed no photos: the photos do "
-                           "not overlap enough or show too little texture. Take more photos with ~70% overlap, avoid "
-                           "plain walls and moving objects" + ("" if matcher == "exhaustive" else
-                                                               ", or try --matcher exhaustive"))
+        raise DatasetError(
+            f"{config.images or config.video}: structure from motion placed no photos: the photos do "
+            "not overlap enough or show too little texture. Take more photos with ~70% overlap, avoid "
+            "plain walls and moving objects" + ("" if matcher == "exhaustive" else ", or try --matcher exhaustive")
+        )
     largest = max(models.values(), key=lambda model: model.num_reg_images())
     return Reconstruction(model=largest, matcher=matcher, groups=len(models))
 
 
-def _extract_features(config: ProcessDataConfig, database: Path, image_dir: Path, names: list[str],
-                      camera_params: str, console: Console) -> None:
+def _extract_features(
+    config: ProcessDataConfig, database: Path, image_dir: Path, names: list[str], camera_params: str, console: Console
+) -> None:
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()
@@ -85,8 +88,15 @@ def _extract_features(config: ProcessDataConfig, database: Path, image_dir: Path
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.num_threads
     with console.status(f"extracting features from {len(names)} photos"):
-        pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+        pycolmap.extract_features(
+            database,
+            image_dir,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
 
 
 def _match(config: ProcessDataConfig, database: Path, matcher: str, console: Console) -> None:
@@ -100,8 +110,9 @@ def _match(config: ProcessDataConfig, database: Path, matcher: str, console: Con
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = config.sequential_overlap
-            pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
-                                      device=pycolmap.Device.cpu)
+            pycolmap.match_sequential(
+                database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            )
 
 
 def mark_registered(photos: list[PhotoRecord], model) -> None:
@@ -111,8 +122,9 @@ def mark_registered(photos: list[PhotoRecord], model) -> None:
         photo.registered = photo.name in placed
 
 
-def check_registered(config: ProcessDataConfig, photos: list[PhotoRecord], models: int,
-                     merged: AbstractSet[str] = frozenset()) -> list[str]:
+def check_registered(
+    config: ProcessDataConfig, photos: list[PhotoRecord], models: int, merged: AbstractSet[str] = frozenset()
+) -> list[str]:
     """An error when too few photos are used; otherwise the warnings about the ones left out.
 
     A photo is used when structure from motion placed it or it is merged into a bracket whose
@@ -123,11 +135,13 @@ def check_registered(config: ProcessDataConfig, photos: list[PhotoRecord], model
     needed = max(MIN_IMAGES, math.ceil(config.min_registered * len(photos)))
     split = f" (the photos fell into {models} separate groups; the largest was kept)" if models > 1 else ""
     if used < needed:
-        raise DatasetError(f"{config.images or config.video}: structure from motion placed only {used} of "
-                           f"{len(photos)} photos (need {needed}, see --min-registered){split}. Not placed: "
-                           f"{', '.join(left_out[:10])}{' ...' if len(left_out) > 10 else ''}. Take more "
-                           "overlapping photos of textured surfaces, or try --matcher exhaustive and "
-                           "--camera-model SIMPLE_RADIAL")
+        raise DatasetError(
+            f"{config.images or config.video}: structure from motion placed only {used} of "
+            f"{len(photos)} photos (need {needed}, see --min-registered){split}. Not placed: "
+            f"{', '.join(left_out[:10])}{' ...' if len(left_out) > 10 else ''}. Take more "
+            "overlapping photos of textured surfaces, or try --matcher exhaustive and "
+            "--camera-model SIMPLE_RADIAL"
+        )
     if left_out:
         return [f"{len(left_out)} photo(s) could not be placed and are left out{split}: {', '.join(left_out)}"]
     return []

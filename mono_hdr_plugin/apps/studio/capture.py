@@ -10,15 +10,15 @@ stages named in `effects` and never calls the others, so an undeclared effect ch
 nothing and costs nothing. Stages with a physical inverse have one (`invert_*`).
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, cast
+from typing import cast
 
 import numpy as np
 
 from mono_hdr_plugin.core.colour import RESPONSE_CURVES, ResponseCurve, decode_curve, encode_curve
 
-PHYSICAL_ORDER = ("exposure", "gain", "offset", "noise", "vignette", "white_balance", "crf",
-                  "clip", "quantize")
+PHYSICAL_ORDER = ("exposure", "gain", "offset", "noise", "vignette", "white_balance", "crf", "clip", "quantize")
 QUANTIZE_BITS = (8, 10, 12, 16)
 CRF_NAMES = (*RESPONSE_CURVES, "gamma", "film")
 
@@ -185,13 +185,23 @@ def apply_quantize(image, settings: CaptureSettings, context):
 
 
 STAGES: dict[str, Callable] = {
-    "exposure": apply_exposure, "gain": apply_gain, "offset": apply_offset,
-    "noise": apply_noise, "vignette": apply_vignette, "white_balance": apply_white_balance,
-    "crf": apply_crf, "clip": apply_clip, "quantize": apply_quantize,
+    "exposure": apply_exposure,
+    "gain": apply_gain,
+    "offset": apply_offset,
+    "noise": apply_noise,
+    "vignette": apply_vignette,
+    "white_balance": apply_white_balance,
+    "crf": apply_crf,
+    "clip": apply_clip,
+    "quantize": apply_quantize,
 }
 INVERSES: dict[str, Callable] = {
-    "exposure": invert_exposure, "gain": invert_gain, "offset": invert_offset,
-    "vignette": invert_vignette, "white_balance": invert_white_balance, "crf": invert_crf,
+    "exposure": invert_exposure,
+    "gain": invert_gain,
+    "offset": invert_offset,
+    "vignette": invert_vignette,
+    "white_balance": invert_white_balance,
+    "crf": invert_crf,
 }
 
 
@@ -199,13 +209,17 @@ def validate_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
     """Check effect names; returns them in physical order."""
     unknown = set(effects) - set(PHYSICAL_ORDER)
     if unknown:
-        raise ValueError(f"unknown capture effect(s) {sorted(unknown)}; "
-                         f"choose from {PHYSICAL_ORDER}")
+        raise ValueError(f"unknown capture effect(s) {sorted(unknown)}; choose from {PHYSICAL_ORDER}")
     return tuple(name for name in PHYSICAL_ORDER if name in effects)
 
 
-def capture(hdr: np.ndarray, exposure: float, effects: tuple[str, ...],
-            settings: CaptureSettings = CaptureSettings(), seed: int = 0) -> np.ndarray:
+def capture(
+    hdr: np.ndarray,
+    exposure: float,
+    effects: tuple[str, ...],
+    settings: CaptureSettings = CaptureSettings(),
+    seed: int = 0,
+) -> np.ndarray:
     """One simulated photo [H, W, 3] float32 of linear radiance `hdr` at `exposure` seconds.
 
     Applies exactly the declared `effects`, in physical order.
@@ -217,8 +231,9 @@ def capture(hdr: np.ndarray, exposure: float, effects: tuple[str, ...],
     return image
 
 
-def linearise(ldr: np.ndarray, exposure: float, effects: tuple[str, ...],
-              settings: CaptureSettings = CaptureSettings()) -> np.ndarray:
+def linearise(
+    ldr: np.ndarray, exposure: float, effects: tuple[str, ...], settings: CaptureSettings = CaptureSettings()
+) -> np.ndarray:
     """Undo the invertible stages of `capture` (noise, clipping and rounding stay)."""
     context = CaptureContext(exposure=exposure)
     image = np.asarray(ldr, np.float32)

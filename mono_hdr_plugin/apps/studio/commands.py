@@ -9,6 +9,7 @@ from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
 from mono_hdr_plugin.core.validation import SEED
 
+
 @dataclass
 class SynthConfig:
     """Write a built-in studio scene to disk in a published dataset layout."""
@@ -43,9 +44,9 @@ def png_bits(scene: StudioScene) -> int:
 
 def synth(config: SynthConfig) -> Path:
     """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
+    from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
     from mono_hdr_plugin.data.layouts import write_layout
     from mono_hdr_plugin.data.outputs import claim_output
-    from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
 
     # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
     with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
@@ -61,14 +62,24 @@ def list_scenes(render: bool = True) -> list[dict]:
     range and how well two renders with different seeds agree (worst view, dB; None unless rendered)."""
     rows = []
     for scene in SCENES.values():
-        row = {"name": scene.name, "resolution": f"{scene.width}x{scene.height}", "views": scene.rig.views,
-               "spp": scene.spp, "description": scene.description, "effects": scene.effects,
-               "dynamic_range": None, "agreement_hdr": None, "agreement_ldr": None}
+        row = {
+            "name": scene.name,
+            "resolution": f"{scene.width}x{scene.height}",
+            "views": scene.rig.views,
+            "spp": scene.spp,
+            "description": scene.description,
+            "effects": scene.effects,
+            "dynamic_range": None,
+            "agreement_hdr": None,
+            "agreement_ldr": None,
+        }
         if render:
             rendered = render_scene(scene)
-            row.update(dynamic_range=dynamic_range(rendered.radiance),
-                       agreement_hdr=float(rendered.agreement_hdr.min()),
-                       agreement_ldr=float(rendered.agreement_ldr.min()))
+            row.update(
+                dynamic_range=dynamic_range(rendered.radiance),
+                agreement_hdr=float(rendered.agreement_hdr.min()),
+                agreement_ldr=float(rendered.agreement_ldr.min()),
+            )
         rows.append(row)
     return rows
 
@@ -78,11 +89,21 @@ def list_scenes_command(config: ScenesConfig) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title="Built-in studio scenes",
-                  caption="seed agreement: PSNR between two renders of each view with different seeds (worst "
-                          "view), mu-law HDR and the noise-free photo at t3; the ground truth is their mean")
-    for column in ("name", "resolution", "views", "spp", "dynamic range", "seed agreement HDR / LDR",
-                   "capture effects", "description"):
+    table = Table(
+        title="Built-in studio scenes",
+        caption="seed agreement: PSNR between two renders of each view with different seeds (worst "
+        "view), mu-law HDR and the noise-free photo at t3; the ground truth is their mean",
+    )
+    for column in (
+        "name",
+        "resolution",
+        "views",
+        "spp",
+        "dynamic range",
+        "seed agreement HDR / LDR",
+        "capture effects",
+        "description",
+    ):
         table.add_column(column)
     for row in list_scenes(config.render):
         if row["dynamic_range"] is None:
@@ -90,6 +111,14 @@ def list_scenes_command(config: ScenesConfig) -> None:
         else:
             ratio = f"{row['dynamic_range']:.2g} : 1"
             agreement = f"{row['agreement_hdr']:.1f} / {row['agreement_ldr']:.1f} dB"
-        table.add_row(row["name"], row["resolution"], str(row["views"]), f"2 x {row['spp']}", ratio, agreement,
-                      ", ".join(row["effects"]), row["description"])
+        table.add_row(
+            row["name"],
+            row["resolution"],
+            str(row["views"]),
+            f"2 x {row['spp']}",
+            ratio,
+            agreement,
+            ", ".join(row["effects"]),
+            row["description"],
+        )
     Console().print(table)

@@ -5,13 +5,13 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points, constant
-from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import SceneRender, render_scene
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points, constant
+from mono_hdr_plugin.data.errors import DatasetError
 
 MAX_INIT_POINTS = 10_000
 
@@ -30,8 +30,9 @@ def photo_seed(seed: int, view: int, exposure_index: int) -> int:
 
 def _photo(render: SceneRender, scene: StudioScene, view: int, exposure_index: int, seed: int):
     exposure = scene.exposures[exposure_index]
-    return lambda: capture(render.radiance[view], exposure, scene.effects, scene.capture,
-                           seed=photo_seed(seed, view, exposure_index))
+    return lambda: capture(
+        render.radiance[view], exposure, scene.effects, scene.capture, seed=photo_seed(seed, view, exposure_index)
+    )
 
 
 def _cameras_with_depth_range(scene: StudioScene, render: SceneRender) -> list[Camera]:
@@ -39,8 +40,7 @@ def _cameras_with_depth_range(scene: StudioScene, render: SceneRender) -> list[C
     cameras = []
     for camera, positions, hit in zip(scene.cameras(), render.positions, render.hit):
         distances = np.linalg.norm(positions[hit] - camera.center.numpy(), axis=-1)
-        cameras.append(replace(camera, near=float(0.8 * distances.min()),
-                               far=float(1.2 * distances.max())))
+        cameras.append(replace(camera, near=float(0.8 * distances.min()), far=float(1.2 * distances.max())))
     return cameras
 
 
@@ -65,14 +65,28 @@ def _initial_points(scene: StudioScene, render: SceneRender, views: list[Capture
 def studio_captured_scene(scene: StudioScene, seed: int = 0) -> CapturedScene:
     """Render `scene` (or read the cached render) and photograph each view at every exposure."""
     render = render_scene(scene)
-    views = [CapturedView(view_id=index, camera=camera, split=scene.split(index), name=f"{index:03d}",
-                          shots=[Shot(exposure, _photo(render, scene, index, e, seed), f"{index:03d}_{e}")
-                                 for e, exposure in enumerate(scene.exposures)],
-                          hdr=constant(render.radiance[index]))
-             for index, camera in enumerate(_cameras_with_depth_range(scene, render))]
+    views = [
+        CapturedView(
+            view_id=index,
+            camera=camera,
+            split=scene.split(index),
+            name=f"{index:03d}",
+            shots=[
+                Shot(exposure, _photo(render, scene, index, e, seed), f"{index:03d}_{e}")
+                for e, exposure in enumerate(scene.exposures)
+            ],
+            hdr=constant(render.radiance[index]),
+        )
+        for index, camera in enumerate(_cameras_with_depth_range(scene, render))
+    ]
     bounds_min, bounds_max = bounds_from_points(render.positions[render.hit])
     points, colours = _initial_points(scene, render, views)
-    return CapturedScene(name=scene.name, views=views, bounds_min=bounds_min, bounds_max=bounds_max,
-                         points=points, point_colors=colours,
-                         metadata={"source": "studio", "effects": scene.effects,
-                                   "exposures": scene.exposures})
+    return CapturedScene(
+        name=scene.name,
+        views=views,
+        bounds_min=bounds_min,
+        bounds_max=bounds_max,
+        points=points,
+        point_colors=colours,
+        metadata={"source": "studio", "effects": scene.effects, "exposures": scene.exposures},
+    )

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.io import atomic_path
-from mono_hdr_plugin.apps.studio.scene import StudioScene
 
 RENDER_VERSION = 2
 """Bump when the rendering code changes what a cached render holds."""
@@ -69,10 +69,17 @@ def _jsonable(value):
 def render_key(scene: StudioScene) -> str:
     """Hash of the scene content, cameras, resolution, sample count and render settings."""
     poses = np.stack([c.c2w.numpy() for c in scene.cameras()])
-    description = {"content": _jsonable(scene.content()), "poses": _jsonable(poses),
-                   "fov": scene.rig.fov_deg, "resolution": scene.resolution, "spp": scene.spp,
-                   "max_depth": scene.max_depth, "key": scene.key_value,
-                   "exposures": scene.exposures, "version": RENDER_VERSION}
+    description = {
+        "content": _jsonable(scene.content()),
+        "poses": _jsonable(poses),
+        "fov": scene.rig.fov_deg,
+        "resolution": scene.resolution,
+        "spp": scene.spp,
+        "max_depth": scene.max_depth,
+        "key": scene.key_value,
+        "exposures": scene.exposures,
+        "version": RENDER_VERSION,
+    }
     return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -103,26 +110,45 @@ def mitsuba_sensor(camera: Camera, spp: int, mitsuba, sampler: str = SAMPLER) ->
     """A Mitsuba perspective sensor that sees exactly what the OpenCV `camera` sees."""
     fov_x = np.degrees(2 * np.arctan(0.5 * camera.width / camera.fx))
     to_world = camera.c2w.double().numpy() @ OPENCV_TO_MITSUBA
-    return {"type": "perspective", "fov": float(fov_x), "fov_axis": "x",
-            "to_world": mitsuba.ScalarTransform4f(to_world.tolist()),
-            "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height,
-                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-            "sampler": {"type": sampler, "sample_count": spp}}
+    return {
+        "type": "perspective",
+        "fov": float(fov_x),
+        "fov_axis": "x",
+        "to_world": mitsuba.ScalarTransform4f(to_world.tolist()),
+        "film": {
+            "type": "hdrfilm",
+            "width": camera.width,
+            "height": camera.height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+        },
+        "sampler": {"type": sampler, "sample_count": spp},
+    }
 
 
 def _render_view(content: dict, camera: Camera, scene: StudioScene, mitsuba, seed: int) -> np.ndarray:
     """Radiance [H, W, 3] of one view with `scene.spp` samples per pixel."""
-    shading = mitsuba.load_dict({"type": "scene", **content,
-                                 "integrator": {"type": "path", "max_depth": scene.max_depth},
-                                 "sensor": mitsuba_sensor(camera, scene.spp, mitsuba)})
+    shading = mitsuba.load_dict(
+        {
+            "type": "scene",
+            **content,
+            "integrator": {"type": "path", "max_depth": scene.max_depth},
+            "sensor": mitsuba_sensor(camera, scene.spp, mitsuba),
+        }
+    )
     return np.array(mitsuba.render(shading, seed=seed), dtype=np.float32)[..., :3]
 
 
 def _render_geometry(content: dict, camera: Camera, mitsuba) -> tuple[np.ndarray, np.ndarray]:
     """(positions [H, W, 3], hit [H, W]) of one view: the surface point at each pixel centre."""
-    geometry = mitsuba.load_dict({"type": "scene", **content,
-                                  "integrator": {"type": "aov", "aovs": "pp:position,dd:depth"},
-                                  "sensor": mitsuba_sensor(camera, 1, mitsuba, sampler="independent")})
+    geometry = mitsuba.load_dict(
+        {
+            "type": "scene",
+            **content,
+            "integrator": {"type": "aov", "aovs": "pp:position,dd:depth"},
+            "sensor": mitsuba_sensor(camera, 1, mitsuba, sampler="independent"),
+        }
+    )
     aov = np.array(mitsuba.render(geometry, seed=0), dtype=np.float32)
     return aov[..., :3], aov[..., 3] > 0
 
@@ -148,7 +174,7 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     if use_cache and path.is_file():
         with np.load(path) as cached:
             return SceneRender(**{name: cached[name] for name in SceneRender.__dataclass_fields__})
-    from rich.console import Console  # noqa: PLC0415 - only a render needs it
+    from rich.console import Console
     from rich.progress import Progress
 
     mitsuba = _mitsuba()
@@ -156,8 +182,9 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     cameras = scene.cameras()
     first_views, second_views, positions, hit = [], [], [], []
     with Progress(console=Console(stderr=True), transient=True) as progress:
-        task = progress.add_task(f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)",
-                                 total=len(cameras))
+        task = progress.add_task(
+            f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)", total=len(cameras)
+        )
         for index, camera in enumerate(cameras):
             first_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index))
             second_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index + 1))
@@ -180,10 +207,10 @@ def seed_agreement(first: np.ndarray, second: np.ndarray, scene: StudioScene) ->
     """Per view, PSNR (dB) between two renders [V, H, W, 3]: of their mu-law HDR (each divided by
     its own max) and of their photos at the middle exposure without sensor noise (noise is a
     property of the photo, not of the render)."""
-    import torch  # noqa: PLC0415
+    import torch
 
-    from mono_hdr_plugin.core.metrics import normalise_hdr, psnr  # noqa: PLC0415
-    from mono_hdr_plugin.apps.studio.capture import capture  # noqa: PLC0415
+    from mono_hdr_plugin.apps.studio.capture import capture
+    from mono_hdr_plugin.core.metrics import normalise_hdr, psnr
 
     middle = sorted(scene.exposures)[len(scene.exposures) // 2]
     effects = tuple(effect for effect in scene.effects if effect != "noise")

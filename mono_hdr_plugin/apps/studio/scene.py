@@ -6,14 +6,15 @@ render cache without importing Mitsuba.
 """
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 import torch
 
-from mono_hdr_plugin.core.cameras import Camera, focal_from_fov, look_at
 from mono_hdr_plugin.apps.studio.capture import CaptureSettings, validate_effects
+from mono_hdr_plugin.core.cameras import Camera, focal_from_fov, look_at
 
 STUDIO_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 """t1..t5 in seconds, the synthetic HDR-NeRF/HDR-GS exposure times."""
@@ -41,17 +42,27 @@ class CameraRig:
         # Elevation swings up and down three times so the views do not all lie on one circle.
         swing = 0.5 - 0.5 * np.cos(steps * 6 * np.pi)
         elevation = np.radians(np.interp(swing, [0, 1], self.elevation_deg))
-        offsets = np.stack([np.cos(elevation) * np.cos(azimuth),
-                            np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1)
+        offsets = np.stack(
+            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1
+        )
         return np.asarray(self.target) + self.radius * offsets
 
     def cameras(self, width: int, height: int) -> list[Camera]:
         """One OpenCV camera per view; principal point at the image centre, square pixels."""
         focal = focal_from_fov(math.radians(self.fov_deg), width)
         target = torch.tensor(self.target, dtype=torch.float32)
-        return [Camera(c2w=look_at(torch.tensor(eye, dtype=torch.float32), target), fx=focal,
-                       fy=focal, cx=width / 2, cy=height / 2, width=width, height=height)
-                for eye in self.eyes()]
+        return [
+            Camera(
+                c2w=look_at(torch.tensor(eye, dtype=torch.float32), target),
+                fx=focal,
+                fy=focal,
+                cx=width / 2,
+                cy=height / 2,
+                width=width,
+                height=height,
+            )
+            for eye in self.eyes()
+        ]
 
 
 @dataclass(frozen=True)
@@ -83,8 +94,10 @@ class StudioScene:
         validate_effects(self.effects)
         root = math.isqrt(self.spp)
         if root * root != self.spp or root < 2 or any(root % d == 0 for d in range(2, math.isqrt(root) + 1)):
-            raise ValueError(f"scene {self.name!r}: spp must be the square of a prime (4, 9, 25, 49, 121, 169, "
-                             f"289, 361, ...) for orthogonal-array sampling, got {self.spp}")
+            raise ValueError(
+                f"scene {self.name!r}: spp must be the square of a prime (4, 9, 25, 49, 121, 169, "
+                f"289, 361, ...) for orthogonal-array sampling, got {self.spp}"
+            )
 
     @property
     def width(self) -> int:
@@ -138,8 +151,7 @@ def diffuse(colour: dict) -> dict:
 
 
 def checker(colour0: dict, colour1: dict, tiles: float) -> dict:
-    return {"type": "checkerboard", "color0": colour0, "color1": colour1,
-            "to_uv": scale(tiles, tiles, 1.0)}
+    return {"type": "checkerboard", "color0": colour0, "color1": colour1, "to_uv": scale(tiles, tiles, 1.0)}
 
 
 def noise_image(seed: int, size: int = 512) -> np.ndarray:
@@ -158,14 +170,17 @@ def noise_texture(seed: int, tiles: float = 1.0, low: float = 0.05, high: float 
     repeated `tiles` times across a shape. Structure from motion matches its features between
     photos; a checkerboard's corners all look alike and mislead it."""
     image = low + (high - low) * noise_image(seed, size=256)
-    return {"type": "bitmap", "filter_type": "bilinear", "bitmap": image.astype(np.float32),
-            "to_uv": scale(tiles, tiles, 1.0)}
+    return {
+        "type": "bitmap",
+        "filter_type": "bilinear",
+        "bitmap": image.astype(np.float32),
+        "to_uv": scale(tiles, tiles, 1.0),
+    }
 
 
 def box(centre, size, bsdf: dict) -> dict:
     """An axis-aligned box with the given centre and full size (x, y, z)."""
-    return {"type": "cube", "to_world": place(translate(*centre), scale(*(s / 2 for s in size))),
-            "bsdf": bsdf}
+    return {"type": "cube", "to_world": place(translate(*centre), scale(*(s / 2 for s in size))), "bsdf": bsdf}
 
 
 def panel(transform: np.ndarray, bsdf: dict) -> dict:
@@ -175,12 +190,23 @@ def panel(transform: np.ndarray, bsdf: dict) -> dict:
 
 def lamp(centre, radius: float, radiance: tuple[float, float, float]) -> dict:
     """A visible spherical emitter (a bulb)."""
-    return {"type": "sphere", "center": list(centre), "radius": radius,
-            "emitter": {"type": "area", "radiance": rgb(*radiance)}}
+    return {
+        "type": "sphere",
+        "center": list(centre),
+        "radius": radius,
+        "emitter": {"type": "area", "radiance": rgb(*radiance)},
+    }
 
 
-def projector(origin, target, up, fov_deg: float, irradiance: tuple[float, float, float],
-              aspect: float = 1.0, soft_edge: float = 0.0) -> dict:
+def projector(
+    origin,
+    target,
+    up,
+    fov_deg: float,
+    irradiance: tuple[float, float, float],
+    aspect: float = 1.0,
+    soft_edge: float = 0.0,
+) -> dict:
     """A point light that throws a rectangle of uniform light (a sun patch through a window):
     Mitsuba's projector with a constant image of width / height `aspect`. `soft_edge` (a
     fraction of the width) fades the border smoothly, as the sun's disc does; a hard edge
@@ -192,10 +218,17 @@ def projector(origin, target, up, fov_deg: float, irradiance: tuple[float, float
         ramp = lambda n: np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / (soft_edge * width), 0, 1)
         image = np.outer(ramp(height), ramp(width))
         image = image * image * (3 - 2 * image)  # smoothstep: no kink where the fade starts
-    return {"type": "projector", "fov": fov_deg, "scale": 1.0,
-            "irradiance": {"type": "bitmap", "filter_type": "bilinear",
-                           "bitmap": image[..., None] * np.asarray(irradiance, np.float32)},
-            "to_world": look_at_matrix(origin, target, up)}
+    return {
+        "type": "projector",
+        "fov": fov_deg,
+        "scale": 1.0,
+        "irradiance": {
+            "type": "bitmap",
+            "filter_type": "bilinear",
+            "bitmap": image[..., None] * np.asarray(irradiance, np.float32),
+        },
+        "to_world": look_at_matrix(origin, target, up),
+    }
 
 
 def look_at_matrix(origin, target, up) -> np.ndarray:

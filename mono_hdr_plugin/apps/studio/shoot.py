@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from mono_hdr_plugin.data.photos.exif import EXPOSURE_MODE_AUTO_BRACKET, make_exif
 from mono_hdr_plugin.apps.studio.capture import capture
 from mono_hdr_plugin.apps.studio.render import SceneRender, luminance, render_scene
 from mono_hdr_plugin.apps.studio.scene import StudioScene
+from mono_hdr_plugin.data.photos.exif import EXPOSURE_MODE_AUTO_BRACKET, make_exif
 
 EXPOSURE_MODE_AUTO = 0
 FULL_FRAME_WIDTH_MM = 36.0
@@ -93,8 +93,12 @@ class ShootResult:
         return sorted({shot.view for shot in self.shots if shot.bracket is not None})
 
     def to_json(self) -> dict:
-        return {"folder": str(self.folder), "shots": [asdict(shot) for shot in self.shots],
-                "held_out": self.held_out, "config": asdict(self.config)}
+        return {
+            "folder": str(self.folder),
+            "shots": [asdict(shot) for shot in self.shots],
+            "held_out": self.held_out,
+            "config": asdict(self.config),
+        }
 
 
 def third_stop(seconds: float) -> Fraction:
@@ -114,12 +118,14 @@ def metered_exposure(radiance: np.ndarray, key: float) -> float:
 def save_jpeg(path: Path, pixels: np.ndarray, quality: int = 95, **exif) -> Path:
     """float [H, W, 3] in [0, 1] -> a JPEG carrying the given EXIF fields (see make_exif)."""
     Image.fromarray((np.clip(pixels, 0, 1) * 255).round().astype(np.uint8)).save(
-        path, quality=quality, exif=make_exif(**exif))
+        path, quality=quality, exif=make_exif(**exif)
+    )
     return path
 
 
-def shoot(scene: StudioScene, folder: Path, config: ShootConfig = ShootConfig(),
-          render: SceneRender | None = None) -> ShootResult:
+def shoot(
+    scene: StudioScene, folder: Path, config: ShootConfig = ShootConfig(), render: SceneRender | None = None
+) -> ShootResult:
     """Photograph `scene` into `folder` (created) as IMG_0001.jpg ...; returns the truth of every photo."""
     if config.views not in ("train", "all"):
         raise ValueError(f"views must be train or all, got {config.views!r}")
@@ -143,14 +149,33 @@ def shoot(scene: StudioScene, folder: Path, config: ShootConfig = ShootConfig(),
             exposure = third_stop(metered * 2**step)
             name, seed = f"IMG_{len(shots) + 1:04d}.jpg", config.seed * 100_003 + len(shots)
             pixels = capture(radiance, float(exposure), effects, scene.capture, seed=seed)
-            fields = {"exposure": exposure, "iso": config.iso, "f_number": Fraction(config.f_number).limit_denominator(100),
-                      "exposure_mode": EXPOSURE_MODE_AUTO_BRACKET if bracketed else EXPOSURE_MODE_AUTO}
-            save_jpeg(folder / name, pixels, config.quality, focal_35mm=focal_35mm, timestamp=clock,
-                      **(fields if config.exposure_exif else {}))
-            shots.append(ShotTruth(file=name, view=view, exposure=float(exposure),
-                                   bracket=brackets if bracketed else None, stops=step, seed=seed))
+            fields = {
+                "exposure": exposure,
+                "iso": config.iso,
+                "f_number": Fraction(config.f_number).limit_denominator(100),
+                "exposure_mode": EXPOSURE_MODE_AUTO_BRACKET if bracketed else EXPOSURE_MODE_AUTO,
+            }
+            save_jpeg(
+                folder / name,
+                pixels,
+                config.quality,
+                focal_35mm=focal_35mm,
+                timestamp=clock,
+                **(fields if config.exposure_exif else {}),
+            )
+            shots.append(
+                ShotTruth(
+                    file=name,
+                    view=view,
+                    exposure=float(exposure),
+                    bracket=brackets if bracketed else None,
+                    stops=step,
+                    seed=seed,
+                )
+            )
             clock += config.seconds_between_bracket_shots + float(exposure)
         brackets += bracketed
         clock += config.seconds_between_views
-    return ShootResult(folder=folder, shots=shots, held_out=[i for i in range(len(cameras)) if i not in chosen],
-                       config=config)
+    return ShootResult(
+        folder=folder, shots=shots, held_out=[i for i in range(len(cameras)) if i not in chosen], config=config
+    )

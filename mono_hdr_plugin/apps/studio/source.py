@@ -1,8 +1,8 @@
 """The studio as a scene source: `--scene NAME` for every built-in scene (entry point `studio`)."""
 
+from mono_hdr_plugin.apps.studio.scenes import SCENES
 from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.sources import SceneSource
-from mono_hdr_plugin.apps.studio.scenes import SCENES
 
 
 class StudioScenes(SceneSource):
@@ -12,7 +12,7 @@ class StudioScenes(SceneSource):
         return list(SCENES)
 
     def captured_scene(self, name: str, seed: int) -> CapturedScene:
-        from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene  # noqa: PLC0415 - Mitsuba on use
+        from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
 
         return studio_captured_scene(get_scene(name), seed=seed)
 

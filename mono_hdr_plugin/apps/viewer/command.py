@@ -37,8 +37,13 @@ class ViewConfig:
 def view_command(config: ViewConfig) -> None:
     model = load_trained_model(config.checkpoint)
     snapshots = ModelSnapshots(model.pipeline, model.step, copy_model=False)
-    viewer = Viewer(ViewerRenderer(snapshots, model.scene), host=config.host, port=config.port, out=config.out,
-                    max_resolution=config.max_resolution)
+    viewer = Viewer(
+        ViewerRenderer(snapshots, model.scene),
+        host=config.host,
+        port=config.port,
+        out=config.out,
+        max_resolution=config.max_resolution,
+    )
     console.print(f"[bold]viewer of {config.checkpoint} (step {model.step}) at {viewer.url}[/bold]  (Ctrl+C to stop)")
     try:
         wait_for_interrupt()

@@ -26,8 +26,9 @@ TRAINING_REFRESH = 2.0
 def viewer_camera_of(client) -> ViewerCamera:
     camera = client.camera
     w, x, y, z = (float(v) for v in camera.wxyz)
-    return ViewerCamera(wxyz=(w, x, y, z), position=_point(camera.position), fov=float(camera.fov),
-                        aspect=float(camera.aspect))
+    return ViewerCamera(
+        wxyz=(w, x, y, z), position=_point(camera.position), fov=float(camera.fov), aspect=float(camera.aspect)
+    )
 
 
 def _point(values) -> tuple[float, float, float]:
@@ -39,14 +40,23 @@ def _point(values) -> tuple[float, float, float]:
 class Viewer:
     """The viser server, its controls, and one render thread per connected browser."""
 
-    def __init__(self, renderer: ViewerRenderer, host: str = "127.0.0.1", port: int = 7007,
-                 out: Path = Path("outputs/viewer"), max_resolution: int = 512, training: bool = False):
-        import viser  # noqa: PLC0415 - only the viewer needs it
+    def __init__(
+        self,
+        renderer: ViewerRenderer,
+        host: str = "127.0.0.1",
+        port: int = 7007,
+        out: Path = Path("outputs/viewer"),
+        max_resolution: int = 512,
+        training: bool = False,
+    ):
+        import viser
 
         if host not in LOCAL_HOSTS:
-            console.print(f"[yellow]warning: the viewer listens on {host}: anyone who can reach this machine on the "
-                          "network can open it (there is no password) and save files into "
-                          f"{out}. Use the default --host 127.0.0.1 with an SSH tunnel to keep it private.")
+            console.print(
+                f"[yellow]warning: the viewer listens on {host}: anyone who can reach this machine on the "
+                "network can open it (there is no password) and save files into "
+                f"{out}. Use the default --host 127.0.0.1 with an SSH tunnel to keep it private."
+            )
         self.renderer, self.out = renderer, out
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.settings_version = 0
@@ -85,10 +95,21 @@ class Viewer:
         if training:
             self.training_status = gui.add_markdown("**Training:** waiting for the first snapshot")
         with gui.add_folder("Exposure"):
-            self.ev = gui.add_slider("EV (stops)", min=-10.0, max=10.0, step=0.1, initial_value=0.0,
-                                     hint="Stops from the training exposure: +1 doubles the exposure time")
-            self.exposure_time = gui.add_number("Exposure (s)", initial_value=1.0, min=1e-9, step=1e-4,
-                                                hint="Exposure time in seconds (same control as EV)")
+            self.ev = gui.add_slider(
+                "EV (stops)",
+                min=-10.0,
+                max=10.0,
+                step=0.1,
+                initial_value=0.0,
+                hint="Stops from the training exposure: +1 doubles the exposure time",
+            )
+            self.exposure_time = gui.add_number(
+                "Exposure (s)",
+                initial_value=1.0,
+                min=1e-9,
+                step=1e-4,
+                hint="Exposure time in seconds (same control as EV)",
+            )
             reset = gui.add_button("Training exposure")
         with gui.add_folder("Output"):
             self.output = gui.add_dropdown("Show", tuple(VIEWER_OUTPUTS.values()), initial_value=VIEWER_OUTPUTS["ldr"])
@@ -96,8 +117,9 @@ class Viewer:
             self.view_choice = gui.add_dropdown("Dataset camera", tuple(self.renderer.views))
             go = gui.add_button("Go to camera")
         with gui.add_folder("Resolution"):
-            self.max_resolution = gui.add_slider("Longest side (px)", min=64, max=2048, step=16,
-                                                 initial_value=max(64, min(2048, max_resolution)))
+            self.max_resolution = gui.add_slider(
+                "Longest side (px)", min=64, max=2048, step=16, initial_value=max(64, min(2048, max_resolution))
+            )
             self.adaptive = gui.add_checkbox("Lower while moving", initial_value=True)
         save = gui.add_button("Save view (EXR + PNG)")
 
@@ -252,8 +274,9 @@ class _ClientLoop(threading.Thread):
         output = viewer.output_key()
         with self._render_lock:
             started = time.perf_counter()
-            shown = renderer.render(viewer_camera, height, output, float(viewer.ev.value), cached=cached,
-                                    cancelled=cancelled)
+            shown = renderer.render(
+                viewer_camera, height, output, float(viewer.ev.value), cached=cached, cancelled=cancelled
+            )
             seconds = time.perf_counter() - started
         # error maps render the dataset camera, not this one: nothing to re-use or time
         if shown.frame is not None and shown.frame is not cached and output not in ERROR_OUTPUTS:
@@ -278,8 +301,9 @@ class _ClientLoop(threading.Thread):
             key = (self.camera_version, viewer.settings_version, snapshot_version, not moving)
             if key == self.rendered_key:
                 continue
-            only_model_changed = self.rendered_key is not None and key[:2] == self.rendered_key[:2] \
-                and key[3] == self.rendered_key[3]
+            only_model_changed = (
+                self.rendered_key is not None and key[:2] == self.rendered_key[:2] and key[3] == self.rendered_key[3]
+            )
             if only_model_changed and time.perf_counter() - self.rendered_at < TRAINING_REFRESH:
                 continue
             try:

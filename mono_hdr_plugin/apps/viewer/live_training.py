@@ -2,7 +2,7 @@
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from rich.console import Console
 
@@ -21,8 +21,13 @@ class SnapshotPublisher(TrainingHook):
     `min_interval` seconds apart): the viewer may lag, training barely notices.
     """
 
-    def __init__(self, snapshots: ModelSnapshots, watched: Callable[[], bool], on_publish: Callable[[int], None],
-                 min_interval: float = 1.0):
+    def __init__(
+        self,
+        snapshots: ModelSnapshots,
+        watched: Callable[[], bool],
+        on_publish: Callable[[int], None],
+        min_interval: float = 1.0,
+    ):
         self.snapshots, self.watched, self.on_publish = snapshots, watched, on_publish
         self.min_interval = min_interval
         self.interval = min_interval
@@ -55,8 +60,13 @@ def train_with_viewer(trainer, report: Callable[[dict], None]) -> dict:
     viewer stays open on the final model until Ctrl+C. `report` receives the metrics first."""
     config = trainer.config
     snapshots = ModelSnapshots(trainer.pipeline, trainer.step)
-    viewer = Viewer(ViewerRenderer(snapshots, trainer.scene), host=config.viewer_host, port=config.viewer_port,
-                    out=config.out / "viewer", training=True)
+    viewer = Viewer(
+        ViewerRenderer(snapshots, trainer.scene),
+        host=config.viewer_host,
+        port=config.viewer_port,
+        out=config.out / "viewer",
+        training=True,
+    )
     console.print(f"[bold]viewer at {viewer.url}[/bold]")
     try:
         metrics = trainer.train(extra_hooks=[SnapshotPublisher(snapshots, viewer.has_clients, viewer.training_step)])

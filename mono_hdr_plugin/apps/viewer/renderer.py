@@ -3,10 +3,10 @@ saving of a shown view."""
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -48,8 +48,11 @@ class ViewerRenderer:
         cameras = [view.camera for view in scene.train]
         self.near, self.far = min(c.near for c in cameras), max(c.far for c in cameras)
         self.up, self.focus = scene_up(cameras), focus_point(scene, cameras)
-        self.views = {f"{split}: {view.stem}": view
-                      for split, views in (("train", scene.train), ("test", scene.test)) for view in first_per_camera(views)}
+        self.views = {
+            f"{split}: {view.stem}": view
+            for split, views in (("train", scene.train), ("test", scene.test))
+            for view in first_per_camera(views)
+        }
         self._exposure_models: dict[int, ExposureModel] = {}
         self._exposure_lock = threading.Lock()
 
@@ -63,8 +66,15 @@ class ViewerRenderer:
     def camera(self, viewer_camera: ViewerCamera, height: int) -> Camera:
         return camera_from_viewer(viewer_camera, height, self.near, self.far)
 
-    def render(self, viewer_camera: ViewerCamera, height: int, output: str, ev: float,
-               cached: Frame | None = None, cancelled: Callable[[], bool] | None = None) -> ViewerImage:
+    def render(
+        self,
+        viewer_camera: ViewerCamera,
+        height: int,
+        output: str,
+        ev: float,
+        cached: Frame | None = None,
+        cancelled: Callable[[], bool] | None = None,
+    ) -> ViewerImage:
         """The image of `output` at `ev` stops from the training exposure, `height` pixels high
         at the viewer's aspect. `cached`: a frame of the same camera and model to re-display
         when the output allows (exposure changes need no render outside the camera response)."""
@@ -78,10 +88,15 @@ class ViewerRenderer:
         render_exposure = exposure if needs_render_at(output, model) else model.reference_exposure
         frame = cached
         wants_depth = output == "depth"
-        if (frame is None or frame.exposure != render_exposure or frame.hdr.shape[0] != height
-                or (wants_depth and frame.depth is None)):
-            frame = snapshot.pipeline.render(self.camera(viewer_camera, height), render_exposure, cancelled,
-                                             with_depth=wants_depth)
+        if (
+            frame is None
+            or frame.exposure != render_exposure
+            or frame.hdr.shape[0] != height
+            or (wants_depth and frame.depth is None)
+        ):
+            frame = snapshot.pipeline.render(
+                self.camera(viewer_camera, height), render_exposure, cancelled, with_depth=wants_depth
+            )
         note = "this backbone renders no depth" if output == "depth" and frame.depth is None else ""
         return ViewerImage(to_uint8(to_display(frame, output, exposure, model)), frame, note)
 
@@ -90,22 +105,38 @@ class ViewerRenderer:
         nearest in exposure where the pose was photographed at several."""
         pose = self.camera(viewer_camera, 8).c2w
         size = float((self.scene.bounds_max - self.scene.bounds_min).norm())
-        at_pose = [view for view in self.scene.train + self.scene.test
-                   if (view.camera.center - pose[:3, 3]).norm() < 1e-3 * size
-                   and torch.allclose(view.camera.c2w[:3, :3], pose[:3, :3], atol=1e-3)]
+        at_pose = [
+            view
+            for view in self.scene.train + self.scene.test
+            if (view.camera.center - pose[:3, 3]).norm() < 1e-3 * size
+            and torch.allclose(view.camera.c2w[:3, :3], pose[:3, :3], atol=1e-3)
+        ]
         return min(at_pose, key=lambda v: abs(math.log(v.exposure / exposure)), default=None)
 
-    def _error_image(self, snapshot: Snapshot, model: ExposureModel, viewer_camera: ViewerCamera, height: int,
-                     output: str, exposure: float) -> ViewerImage:
+    def _error_image(
+        self,
+        snapshot: Snapshot,
+        model: ExposureModel,
+        viewer_camera: ViewerCamera,
+        height: int,
+        output: str,
+        exposure: float,
+    ) -> ViewerImage:
         view = self.dataset_view(viewer_camera, exposure)
         width = max(1, round(height * viewer_camera.aspect))
         if view is None:
-            return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
-                               "go to a dataset camera (Camera) to compare with its ground truth")
+            return ViewerImage(
+                np.full((height, width, 3), 40, np.uint8),
+                None,
+                "go to a dataset camera (Camera) to compare with its ground truth",
+            )
         if output == "error-hdr":
             if view.hdr is None:
-                return ViewerImage(np.full((height, width, 3), 40, np.uint8), None,
-                                   f"{view.stem} has no HDR ground truth: choose the LDR error")
+                return ViewerImage(
+                    np.full((height, width, 3), 40, np.uint8),
+                    None,
+                    f"{view.stem} has no HDR ground truth: choose the LDR error",
+                )
             frame = snapshot.pipeline.render(view.camera, model.reference_exposure)
             error = (normalise_hdr(frame.hdr) - normalise_hdr(view.hdr)).abs().mean(-1)
             note = f"{view.stem}: HDR PSNR {hdr_metrics(frame.hdr, view.hdr)['hdr_psnr']:.2f} dB (mu-law, own max)"
@@ -125,7 +156,7 @@ def letterbox(image: np.ndarray, aspect: float, fill: int = 40) -> np.ndarray:
     canvas_height, canvas_width = max(height, round(width / aspect)), max(width, round(height * aspect))
     canvas = np.full((canvas_height, canvas_width, 3), fill, np.uint8)
     top, left = (canvas_height - height) // 2, (canvas_width - width) // 2
-    canvas[top:top + height, left:left + width] = image
+    canvas[top : top + height, left : left + width] = image
     return canvas
 
 

@@ -17,8 +17,15 @@ from mono_hdr_plugin.data.layouts import hdr_nerf_synthetic  # noqa: F401 - regi
 from mono_hdr_plugin.data.layouts import hdr_nerf_real  # noqa: F401 - registers the layout
 # isort: on
 
-__all__ = ["LAYOUTS", "DatasetLayout", "detect_layout", "read_layout", "register_layout", "writable_layouts",
-           "write_layout"]
+__all__ = [
+    "LAYOUTS",
+    "DatasetLayout",
+    "detect_layout",
+    "read_layout",
+    "register_layout",
+    "writable_layouts",
+    "write_layout",
+]
 
 
 def detect_layout(folder: Path) -> str:
@@ -29,8 +36,10 @@ def detect_layout(folder: Path) -> str:
         if entry.plugin.detect(folder):
             return name
     expected = "; ".join(f"{name}: {entry.plugin.description}" for name, entry in layouts.items())
-    raise DatasetError(f"{folder}: unknown dataset layout. Expected one of these ({expected}). Convert your "
-                       "photos with `mono-hdr process-data`; the layouts are described in docs/datasets.md")
+    raise DatasetError(
+        f"{folder}: unknown dataset layout. Expected one of these ({expected}). Convert your "
+        "photos with `mono-hdr process-data`; the layouts are described in docs/datasets.md"
+    )
 
 
 def read_layout(folder: str | Path, layout: str = "auto") -> CapturedScene:

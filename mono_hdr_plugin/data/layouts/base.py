@@ -3,8 +3,8 @@
 from pathlib import Path
 from typing import Any, ClassVar
 
-from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
+from mono_hdr_plugin.data.captures import CapturedScene
 
 
 class DatasetLayout:
@@ -35,8 +35,9 @@ class DatasetLayout:
 
 def _validate_layout(name: str, layout: Any) -> None:
     if not (isinstance(layout, type) and issubclass(layout, DatasetLayout)):
-        raise RegistryError(f"dataset layout {name!r}: {layout!r} is not a subclass of "
-                            "mono_hdr_plugin.data.layouts.DatasetLayout")
+        raise RegistryError(
+            f"dataset layout {name!r}: {layout!r} is not a subclass of mono_hdr_plugin.data.layouts.DatasetLayout"
+        )
 
 
 LAYOUTS: PluginRegistry[type[DatasetLayout]] = PluginRegistry("dataset layout", "mono_hdr.layouts", _validate_layout)

@@ -13,10 +13,20 @@ from pathlib import Path
 from mono_hdr_plugin.data.errors import DatasetError
 
 # Parameters per camera model (COLMAP's src/colmap/sensor/models.h); the focal lengths come first.
-CAMERA_MODELS = {"SIMPLE_PINHOLE": (3, 1), "PINHOLE": (4, 2), "SIMPLE_RADIAL": (4, 1), "RADIAL": (5, 1),
-                 "OPENCV": (8, 2), "OPENCV_FISHEYE": (8, 2), "FULL_OPENCV": (12, 2), "FOV": (5, 2),
-                 "SIMPLE_RADIAL_FISHEYE": (4, 1), "RADIAL_FISHEYE": (5, 1), "THIN_PRISM_FISHEYE": (12, 2),
-                 "RAD_TAN_THIN_PRISM_FISHEYE": (16, 2)}
+CAMERA_MODELS = {
+    "SIMPLE_PINHOLE": (3, 1),
+    "PINHOLE": (4, 2),
+    "SIMPLE_RADIAL": (4, 1),
+    "RADIAL": (5, 1),
+    "OPENCV": (8, 2),
+    "OPENCV_FISHEYE": (8, 2),
+    "FULL_OPENCV": (12, 2),
+    "FOV": (5, 2),
+    "SIMPLE_RADIAL_FISHEYE": (4, 1),
+    "RADIAL_FISHEYE": (5, 1),
+    "THIN_PRISM_FISHEYE": (12, 2),
+    "RAD_TAN_THIN_PRISM_FISHEYE": (16, 2),
+}
 MAX_ID = 2**32 - 1
 INTEGER = re.compile(r"[+-]?[0-9]{1,20}")
 
@@ -65,8 +75,9 @@ def _data_lines(path: Path, pairs: bool = False):
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except UnicodeDecodeError as error:
-        raise DatasetError(f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); re-export the "
-                           "model with COLMAP") from error
+        raise DatasetError(
+            f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); re-export the model with COLMAP"
+        ) from error
     index = 0
     while index < len(lines):
         text = lines[index].strip()
@@ -96,8 +107,9 @@ def check_cameras(path: Path) -> set[int]:
         if line.remaining() != count:
             raise line.fail(f"camera model {model} has {count} parameters, the line has {line.remaining()}")
         for index in range(count):
-            line.number(f"PARAMS[{index}]" + (" (focal length)" if index < focal_count else ""),
-                        positive=index < focal_count)
+            line.number(
+                f"PARAMS[{index}]" + (" (focal length)" if index < focal_count else ""), positive=index < focal_count
+            )
         if camera_id in ids:
             raise line.fail(f"CAMERA_ID {camera_id} appears twice")
         ids.add(camera_id)

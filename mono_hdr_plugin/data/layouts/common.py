@@ -16,9 +16,9 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import check_readable
-from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_NAME_BYTES = 255
@@ -87,11 +87,16 @@ def json_name(value, where: str) -> str:
 
 def json_matrix(value, where: str, rows: int, columns: int) -> np.ndarray:
     """A rows x columns list of lists of finite numbers."""
-    if not (isinstance(value, list) and len(value) == rows
-            and all(isinstance(row, list) and len(row) == columns for row in value)):
+    if not (
+        isinstance(value, list)
+        and len(value) == rows
+        and all(isinstance(row, list) and len(row) == columns for row in value)
+    ):
         raise DatasetError(f"{where} must be a {rows}x{columns} list of rows of numbers, got {shown(value)}")
-    return np.array([[json_number(item, f"{where}[{i}][{j}]") for j, item in enumerate(row)]
-                     for i, row in enumerate(value)], dtype=np.float64)
+    return np.array(
+        [[json_number(item, f"{where}[{i}][{j}]") for j, item in enumerate(row)] for i, row in enumerate(value)],
+        dtype=np.float64,
+    )
 
 
 def check_exposure(value, where: str) -> float:
@@ -101,8 +106,9 @@ def check_exposure(value, where: str) -> float:
         with contextlib.suppress(TypeError, ValueError, OverflowError):  # not a number: named below
             exposure = float(value)
     if not (math.isfinite(exposure) and exposure > 0):
-        raise DatasetError(f"{where}: exposure time {shown(value)} is not a positive number of seconds; "
-                           "fix the exposure value")
+        raise DatasetError(
+            f"{where}: exposure time {shown(value)} is not a positive number of seconds; fix the exposure value"
+        )
     return exposure
 
 

@@ -26,15 +26,30 @@ import numpy as np
 import torch
 
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.data.captures import (CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras,
-                                           bounds_from_points)
+from mono_hdr_plugin.data.captures import (
+    CapturedScene,
+    CapturedView,
+    ImageFile,
+    Shot,
+    bounds_from_cameras,
+    bounds_from_points,
+)
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.colmap_text import check_text_model
-from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_finite, check_one_size,
-                                                 image_size, json_name, json_object, load_json, natural_key,
-                                                 split_view_exposure)
+from mono_hdr_plugin.data.layouts.common import (
+    camera_from,
+    check_exposure,
+    check_finite,
+    check_one_size,
+    image_size,
+    json_name,
+    json_object,
+    load_json,
+    natural_key,
+    split_view_exposure,
+)
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 EXPOSURES_FILE = "exposures.json"
@@ -69,7 +84,7 @@ def _read_model(folder: Path):
     check_text_model(model)
     try:
         return pycolmap.Reconstruction(str(model))
-    except Exception as error:  # noqa: BLE001 - pycolmap raises bare RuntimeError/ValueError/IndexError
+    except Exception as error:
         reason = str(error).splitlines()[0][:200] if str(error) else type(error).__name__
         raise DatasetError(f"{model}: cannot read the COLMAP model ({reason}); re-run COLMAP") from error
 
@@ -83,14 +98,24 @@ def _camera(colmap_camera, pose, folder: Path, name: str) -> Camera:
         fx, cx, cy = params
         fy = fx
     else:
-        raise DatasetError(f"{folder / MODEL_FOLDER}: image {name} uses camera model {model}; only "
-                           "PINHOLE and SIMPLE_PINHOLE are supported: undistort the images "
-                           "(colmap image_undistorter)")
+        raise DatasetError(
+            f"{folder / MODEL_FOLDER}: image {name} uses camera model {model}; only "
+            "PINHOLE and SIMPLE_PINHOLE are supported: undistort the images "
+            "(colmap image_undistorter)"
+        )
     w2c = np.eye(4)
     w2c[:3] = check_finite(pose.matrix(), folder / MODEL_FOLDER, f"the pose of {name}")
     # COLMAP's pixel (0, 0) covers [0, 1]^2 with its centre at 0.5, the same as Camera's.
-    return camera_from(f"{folder / MODEL_FOLDER} image {name}", c2w=torch.from_numpy(np.linalg.inv(w2c)).float(),
-                       fx=fx, fy=fy, cx=cx, cy=cy, width=colmap_camera.width, height=colmap_camera.height)
+    return camera_from(
+        f"{folder / MODEL_FOLDER} image {name}",
+        c2w=torch.from_numpy(np.linalg.inv(w2c)).float(),
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        width=colmap_camera.width,
+        height=colmap_camera.height,
+    )
 
 
 def _cam_from_world(image):
@@ -103,8 +128,9 @@ class _ExposureSource:
 
     def __init__(self, folder: Path):
         self.json_path = folder / EXPOSURES_FILE
-        self.table = (json_object(load_json(self.json_path, ""), str(self.json_path))
-                      if self.json_path.exists() else None)
+        self.table = (
+            json_object(load_json(self.json_path, ""), str(self.json_path)) if self.json_path.exists() else None
+        )
         self.npy_path = folder / POSES_FILE
         self.rows = None
         if self.table is None and self.npy_path.is_file():
@@ -117,8 +143,9 @@ class _ExposureSource:
     def __call__(self, name: str, image_id: int, e: int) -> float:
         if self.table is not None:
             if name not in self.table:
-                raise DatasetError(f"{self.json_path}: no exposure for {name!r}; add it (seconds, or null "
-                                   "when unknown)")
+                raise DatasetError(
+                    f"{self.json_path}: no exposure for {name!r}; add it (seconds, or null when unknown)"
+                )
             if self.table[name] is None:
                 self.unknown.append(name)
                 return UNKNOWN_EXPOSURE
@@ -126,8 +153,10 @@ class _ExposureSource:
         if self.rows is not None:
             row = (image_id - 1) * MAX_EXPOSURES + e
             if self.rows.ndim != 2 or self.rows.shape[1] < 18 or not 0 <= row < len(self.rows):
-                raise DatasetError(f"{self.npy_path}: no row {row} for {name} (shape {self.rows.shape}); "
-                                   "the exposures are out of step with the COLMAP images: regenerate it")
+                raise DatasetError(
+                    f"{self.npy_path}: no row {row} for {name} (shape {self.rows.shape}); "
+                    "the exposures are out of step with the COLMAP images: regenerate it"
+                )
             return check_exposure(self.rows[row, 17], f"{self.npy_path} row {row} ({name})")
         if e >= len(SYNTHETIC_EXPOSURES):
             raise DatasetError(f"{name}: exposure index {e} has no default time; write {self.json_path.name}")
@@ -139,8 +168,10 @@ def _view_shots(images: Path, name: str, image_id: int, exposures: _ExposureSour
     parsed = split_view_exposure(name)
     if parsed is None:
         if exposures.table is None:
-            raise DatasetError(f"{images / name}: expected <view>_<exposure index>.<ext> (e.g. 0_0.png) "
-                               f"or an {EXPOSURES_FILE} giving each image's exposure; add one")
+            raise DatasetError(
+                f"{images / name}: expected <view>_<exposure index>.<ext> (e.g. 0_0.png) "
+                f"or an {EXPOSURES_FILE} giving each image's exposure; add one"
+            )
         candidates = [(name, 0)]
     else:
         suffix = Path(name).suffix
@@ -167,8 +198,11 @@ def _points(model, where: Path):
     colours = np.stack([point.color for point in entries]) / 255.0
     finite = np.isfinite(points).all(-1)
     if not finite.all():
-        warnings.warn(f"{where}: {int((~finite).sum())} of {len(points)} COLMAP points have NaN/Inf coordinates "
-                      "and are left out of the initialisation; re-run COLMAP to get them back", stacklevel=3)
+        warnings.warn(
+            f"{where}: {int((~finite).sum())} of {len(points)} COLMAP points have NaN/Inf coordinates "
+            "and are left out of the initialisation; re-run COLMAP to get them back",
+            stacklevel=3,
+        )
         points, colours = points[finite], colours[finite]
         if not len(points):
             return None, None
@@ -182,8 +216,10 @@ def _response(folder: Path) -> list | None:
         return None
     table = np.asarray(load_json(path, "delete it; process-data writes it again").get("linear_rgb", []), np.float64)
     if table.shape != (256, 3) or not np.isfinite(table).all() or (np.diff(table, axis=0) <= 0).any():
-        raise DatasetError(f"{path}: linear_rgb must be 256 increasing [r, g, b] rows; delete the file (sRGB is "
-                           "then assumed) or run process-data again")
+        raise DatasetError(
+            f"{path}: linear_rgb must be 256 increasing [r, g, b] rows; delete the file (sRGB is "
+            "then assumed) or run process-data again"
+        )
     return table.tolist()
 
 
@@ -210,8 +246,10 @@ def read(folder: Path) -> CapturedScene:
     try:
         entries = sorted(model.images.items(), key=lambda item: natural_key(item[1].name))
     except UnicodeDecodeError as error:
-        raise DatasetError(f"{folder / MODEL_FOLDER}: an image name is not UTF-8 text ({error.reason}); rename the "
-                           "images and re-run COLMAP") from error
+        raise DatasetError(
+            f"{folder / MODEL_FOLDER}: an image name is not UTF-8 text ({error.reason}); rename the "
+            "images and re-run COLMAP"
+        ) from error
     for _, image in entries:
         json_name(image.name, f"{folder / MODEL_FOLDER}: image name")
     if not entries:
@@ -225,23 +263,43 @@ def read(folder: Path) -> CapturedScene:
         token = Path(image.name).stem.split("_")[0]
         exr = folder / "exr" / f"{token}.exr"
         test = view_id % 2 == 1 if test_names is None else image.name in test_names
-        views.append(CapturedView(view_id=view_id, camera=camera, split="test" if test else "train",
-                                  shots=shots, name=token,
-                                  hdr=ImageFile(exr, read_exr) if exr.is_file() else None))
+        views.append(
+            CapturedView(
+                view_id=view_id,
+                camera=camera,
+                split="test" if test else "train",
+                shots=shots,
+                name=token,
+                hdr=ImageFile(exr, read_exr) if exr.is_file() else None,
+            )
+        )
     width, height = check_one_size(sizes, images)
     for view in views:
         if (view.camera.width, view.camera.height) != (width, height):
-            raise DatasetError(f"{folder / MODEL_FOLDER}: camera of {view.shots[0].name} is "
-                               f"{view.camera.width}x{view.camera.height} but the photos are {width}x{height}; "
-                               "re-run COLMAP on these images or resize them")
+            raise DatasetError(
+                f"{folder / MODEL_FOLDER}: camera of {view.shots[0].name} is "
+                f"{view.camera.width}x{view.camera.height} but the photos are {width}x{height}; "
+                "re-run COLMAP on these images or resize them"
+            )
     points, colours = _points(model, folder / MODEL_FOLDER)
-    bounds = bounds_from_points(points.numpy()) if points is not None else \
-        bounds_from_cameras([v.camera for v in views])
-    return CapturedScene(name=folder.name, views=views, bounds_min=bounds[0], bounds_max=bounds[1],
-                         points=points, point_colors=colours,
-                         metadata={"source": str(folder), "layout": "hdr-gs", "unknown_exposures": exposures.unknown,
-                                   "camera_response": _response(folder),
-                                   "partial_hdr_expected": (folder / REPORT_FILE).is_file()})
+    bounds = (
+        bounds_from_points(points.numpy()) if points is not None else bounds_from_cameras([v.camera for v in views])
+    )
+    return CapturedScene(
+        name=folder.name,
+        views=views,
+        bounds_min=bounds[0],
+        bounds_max=bounds[1],
+        points=points,
+        point_colors=colours,
+        metadata={
+            "source": str(folder),
+            "layout": "hdr-gs",
+            "unknown_exposures": exposures.unknown,
+            "camera_response": _response(folder),
+            "partial_hdr_expected": (folder / REPORT_FILE).is_file(),
+        },
+    )
 
 
 def _write_model(scene: CapturedScene, model_folder: Path) -> None:
@@ -249,17 +307,26 @@ def _write_model(scene: CapturedScene, model_folder: Path) -> None:
 
     reconstruction = pycolmap.Reconstruction()
     camera = scene.views[0].camera
-    reconstruction.add_camera_with_trivial_rig(pycolmap.Camera(
-        model="PINHOLE", width=camera.width, height=camera.height, camera_id=1,
-        params=[camera.fx, camera.fy, camera.cx, camera.cy]))
+    reconstruction.add_camera_with_trivial_rig(
+        pycolmap.Camera(
+            model="PINHOLE",
+            width=camera.width,
+            height=camera.height,
+            camera_id=1,
+            params=[camera.fx, camera.fy, camera.cx, camera.cy],
+        )
+    )
     for index, view in enumerate(scene.views):
         w2c = view.camera.w2c.double().numpy()
         image = pycolmap.Image(name=f"{index:03d}_0.png", camera_id=1, image_id=index + 1)
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
         reconstruction.add_image_with_trivial_frame(image, pose)
     if scene.points is not None:
-        colours = (np.full((len(scene.points), 3), 128, np.uint8) if scene.point_colors is None  # grey, as 3DGS
-                   else (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+        colours = (
+            np.full((len(scene.points), 3), 128, np.uint8)
+            if scene.point_colors is None  # grey, as 3DGS
+            else (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+        )
         for xyz, rgb in zip(scene.points.double().numpy(), colours):
             reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
     model_folder.mkdir(parents=True, exist_ok=True)

@@ -18,9 +18,16 @@ from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bou
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import atomic_path, read_image, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
-from mono_hdr_plugin.data.layouts.common import (IMAGE_SUFFIXES, camera_from, check_exposure, check_finite,
-                                                 check_one_size, image_size, natural_key,
-                                                 split_view_exposure)
+from mono_hdr_plugin.data.layouts.common import (
+    IMAGE_SUFFIXES,
+    camera_from,
+    check_exposure,
+    check_finite,
+    check_one_size,
+    image_size,
+    natural_key,
+    split_view_exposure,
+)
 
 POSES_FILE = "poses_bounds_exps.npy"
 IMAGE_FOLDER = "input_images"
@@ -52,12 +59,15 @@ def _load_rows(folder: Path, names: list[str]) -> np.ndarray:
     except (ValueError, OSError, EOFError) as error:
         raise DatasetError(f"{path}: cannot read the array ({error}); regenerate it") from error
     if rows.ndim != 2 or rows.shape[1] != COLUMNS:
-        raise DatasetError(f"{path}: shape {rows.shape}, expected (images, {COLUMNS}) "
-                           "(pose 15, near, far, exposure); regenerate it")
+        raise DatasetError(
+            f"{path}: shape {rows.shape}, expected (images, {COLUMNS}) (pose 15, near, far, exposure); regenerate it"
+        )
     if len(rows) != len(names):
-        raise DatasetError(f"{path}: {len(rows)} rows but {folder / IMAGE_FOLDER} has {len(names)} "
-                           "images; the poses/exposures are out of step with the images: "
-                           "restore the missing images or regenerate the file")
+        raise DatasetError(
+            f"{path}: {len(rows)} rows but {folder / IMAGE_FOLDER} has {len(names)} "
+            "images; the poses/exposures are out of step with the images: "
+            "restore the missing images or regenerate the file"
+        )
     return check_finite(rows, path, "a pose, bound or exposure")
 
 
@@ -73,8 +83,9 @@ def read(folder: Path) -> CapturedScene:
     for name, row in zip(names, rows):
         parsed = split_view_exposure(name)
         if parsed is None:
-            raise DatasetError(f"{images / name}: expected a name <view>_<exposure index>.<ext> "
-                               "like 000_0.jpg; rename the file")
+            raise DatasetError(
+                f"{images / name}: expected a name <view>_<exposure index>.<ext> like 000_0.jpg; rename the file"
+            )
         groups.setdefault(parsed[0], []).append((name, row))
     width, height = check_one_size({images / n: image_size(images / n) for n in names}, images)
     views = []
@@ -82,22 +93,49 @@ def read(folder: Path) -> CapturedScene:
         (first_name, first_row), *_ = groups[token]
         pose = first_row[:15].reshape(3, 5)
         if not (pose[:, 4] > 0).all():
-            raise DatasetError(f"{folder / POSES_FILE} row of {first_name}: image height, width and focal length "
-                               f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
-                               "regenerate the file")
+            raise DatasetError(
+                f"{folder / POSES_FILE} row of {first_name}: image height, width and focal length "
+                f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
+                "regenerate the file"
+            )
         focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
-        camera = camera_from(f"{folder / POSES_FILE} row of {first_name}",
-                             c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(), fx=focal, fy=focal,
-                             cx=width / 2, cy=height / 2, width=width, height=height,
-                             near=float(first_row[15]), far=float(first_row[16]))
-        shots = [Shot(check_exposure(row[17], f"{folder / POSES_FILE} row of {name}"),
-                      functools.partial(read_image, images / name), name)
-                 for name, row in groups[token]]
-        views.append(CapturedView(view_id=view_id, camera=camera, split="train" if view_id % 2 == 0 else "test",
-                                  shots=sorted(shots, key=lambda s: s.exposure), name=token))
+        camera = camera_from(
+            f"{folder / POSES_FILE} row of {first_name}",
+            c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(),
+            fx=focal,
+            fy=focal,
+            cx=width / 2,
+            cy=height / 2,
+            width=width,
+            height=height,
+            near=float(first_row[15]),
+            far=float(first_row[16]),
+        )
+        shots = [
+            Shot(
+                check_exposure(row[17], f"{folder / POSES_FILE} row of {name}"),
+                functools.partial(read_image, images / name),
+                name,
+            )
+            for name, row in groups[token]
+        ]
+        views.append(
+            CapturedView(
+                view_id=view_id,
+                camera=camera,
+                split="train" if view_id % 2 == 0 else "test",
+                shots=sorted(shots, key=lambda s: s.exposure),
+                name=token,
+            )
+        )
     bounds_min, bounds_max = bounds_from_cameras([v.camera for v in views])
-    return CapturedScene(name=folder.name, views=views, bounds_min=bounds_min, bounds_max=bounds_max,
-                         metadata={"source": str(folder), "layout": "hdr-nerf-real"})
+    return CapturedScene(
+        name=folder.name,
+        views=views,
+        bounds_min=bounds_min,
+        bounds_max=bounds_max,
+        metadata={"source": str(folder), "layout": "hdr-nerf-real"},
+    )
 
 
 def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:

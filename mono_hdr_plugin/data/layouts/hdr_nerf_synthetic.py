@@ -1,10 +1,10 @@
 """HDR-NeRF synthetic layout (docs/datasets.md), read and written.
 
-    transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
-                                   transform_matrix (OpenGL camera-to-world)
-    exposure_{train,test}.json     {file_path + "_<e>.png": seconds}
-    <file_path>_<e>.png            e = 0..4 (t1..t5)
-    {train,test}_hdr/hdr_%03d.exr  HDR ground truth, index = last "_" token of file_path
+transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
+                               transform_matrix (OpenGL camera-to-world)
+exposure_{train,test}.json     {file_path + "_<e>.png": seconds}
+<file_path>_<e>.png            e = 0..4 (t1..t5)
+{train,test}_hdr/hdr_%03d.exr  HDR ground truth, index = last "_" token of file_path
 """
 
 import functools
@@ -15,13 +15,22 @@ from pathlib import Path
 import torch
 
 from mono_hdr_plugin.core.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
+from mono_hdr_plugin.core.validation import between
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
-from mono_hdr_plugin.data.layouts.common import (camera_from, check_exposure, check_one_size, image_size, json_matrix,
-                                                 json_name, json_number, json_object, load_json)
-from mono_hdr_plugin.core.validation import between
+from mono_hdr_plugin.data.layouts.common import (
+    camera_from,
+    check_exposure,
+    check_one_size,
+    image_size,
+    json_matrix,
+    json_name,
+    json_number,
+    json_object,
+    load_json,
+)
 
 SPLITS = ("train", "test")
 MAX_EXPOSURES = 5
@@ -44,46 +53,60 @@ def _frame_shots(folder: Path, file_path: str, exposures: dict, exposure_file: P
         key = f"{file_path}_{e}.png"
         exists = (folder / key).is_file()
         if exists and key not in exposures:
-            raise DatasetError(f"{exposure_file}: no exposure for {key!r}, which exists; "
-                               "add its exposure time (seconds) to the file")
+            raise DatasetError(
+                f"{exposure_file}: no exposure for {key!r}, which exists; add its exposure time (seconds) to the file"
+            )
         if key in exposures and not exists:
-            raise DatasetError(f"{exposure_file}: lists {key!r} but {folder / key} is missing; "
-                               "the exposure file is out of step with the images: restore the image "
-                               "or remove the entry")
+            raise DatasetError(
+                f"{exposure_file}: lists {key!r} but {folder / key} is missing; "
+                "the exposure file is out of step with the images: restore the image "
+                "or remove the entry"
+            )
         if exists:
             exposure = check_exposure(exposures[key], f"{exposure_file} [{key!r}]")
             shots.append(Shot(exposure, functools.partial(read_image, folder / key), key))
     if not shots:
-        raise DatasetError(f"{folder}: frame {file_path!r} has no image {file_path}_<0..4>.png; "
-                           "restore the images or remove the frame from the transforms file")
+        raise DatasetError(
+            f"{folder}: frame {file_path!r} has no image {file_path}_<0..4>.png; "
+            "restore the images or remove the frame from the transforms file"
+        )
     return shots
 
 
 def _read_split(folder: Path, split: str, first_view_id: int):
     transforms_file = folder / f"transforms_{split}.json"
     exposure_file = folder / f"exposure_{split}.json"
-    transforms = json_object(load_json(transforms_file, f"an HDR-NeRF synthetic scene needs {transforms_file.name}"),
-                             str(transforms_file))
-    exposures = json_object(load_json(exposure_file, f"write {exposure_file.name}: {{image name: seconds}}"),
-                            str(exposure_file))
+    transforms = json_object(
+        load_json(transforms_file, f"an HDR-NeRF synthetic scene needs {transforms_file.name}"), str(transforms_file)
+    )
+    exposures = json_object(
+        load_json(exposure_file, f"write {exposure_file.name}: {{image name: seconds}}"), str(exposure_file)
+    )
     frames = transforms.get("frames")
     if "camera_angle_x" not in transforms or not isinstance(frames, list) or not frames:
         raise DatasetError(f"{transforms_file}: needs 'camera_angle_x' and a non-empty 'frames' list")
-    angle = json_number(transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)",
-                        FIELD_OF_VIEW)
+    angle = json_number(
+        transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)", FIELD_OF_VIEW
+    )
     poses = []
     for index, frame in enumerate(frames):
         where = f"{transforms_file}: frames[{index}]"
         frame = json_object(frame, where)
         if "file_path" not in frame or "transform_matrix" not in frame:
             raise DatasetError(f"{where} needs 'file_path' and 'transform_matrix'; add them or remove the frame")
-        poses.append((json_name(frame["file_path"], f"{where}.file_path"),
-                      json_matrix(frame["transform_matrix"], f"{where}.transform_matrix", 4, 4)))
+        poses.append(
+            (
+                json_name(frame["file_path"], f"{where}.file_path"),
+                json_matrix(frame["transform_matrix"], f"{where}.transform_matrix", 4, 4),
+            )
+        )
     listed = {f"{file_path}_{e}.png" for file_path, _ in poses for e in range(MAX_EXPOSURES)}
     stray = sorted(set(exposures) - listed)
     if stray:
-        raise DatasetError(f"{exposure_file}: entries {stray[:3]} match no frame of {transforms_file.name}; "
-                           "the exposure file is out of step with the frames: regenerate it")
+        raise DatasetError(
+            f"{exposure_file}: entries {stray[:3]} match no frame of {transforms_file.name}; "
+            "the exposure file is out of step with the frames: regenerate it"
+        )
     views = []
     for offset, (file_path, c2w_gl) in enumerate(poses):
         shots = _frame_shots(folder, file_path, exposures, exposure_file)
@@ -102,29 +125,56 @@ def read(folder: Path) -> CapturedScene:
     angle_train, train = _read_split(folder, "train", 0)
     angle_test, test = _read_split(folder, "test", len(train))
     if not math.isclose(angle_train, angle_test, rel_tol=1e-6):
-        raise DatasetError(f"{folder}: camera_angle_x differs between transforms_train.json and "
-                           "transforms_test.json; both splits must share one camera")
-    sizes = {folder / shot.name: image_size(folder / shot.name)
-             for *_, shots in train + test for shot in shots}
+        raise DatasetError(
+            f"{folder}: camera_angle_x differs between transforms_train.json and "
+            "transforms_test.json; both splits must share one camera"
+        )
+    sizes = {folder / shot.name: image_size(folder / shot.name) for *_, shots in train + test for shot in shots}
     width, height = check_one_size(sizes, folder)
     focal = focal_from_fov(angle_test, width)  # the official loader takes the test file's angle
     views = []
     for view_id, split, file_path, c2w_gl, shots in train + test:
         c2w = torch.from_numpy(c2w_gl).float() @ OPENGL_TO_OPENCV
-        camera = camera_from(f"{folder / f'transforms_{split}.json'} frame {file_path!r}", c2w=c2w, fx=focal,
-                             fy=focal, cx=width / 2, cy=height / 2, width=width, height=height)
-        views.append(CapturedView(view_id=view_id, camera=camera, split=split, shots=shots,
-                                  hdr=_hdr_source(folder, split, file_path), name=file_path))
+        camera = camera_from(
+            f"{folder / f'transforms_{split}.json'} frame {file_path!r}",
+            c2w=c2w,
+            fx=focal,
+            fy=focal,
+            cx=width / 2,
+            cy=height / 2,
+            width=width,
+            height=height,
+        )
+        views.append(
+            CapturedView(
+                view_id=view_id,
+                camera=camera,
+                split=split,
+                shots=shots,
+                hdr=_hdr_source(folder, split, file_path),
+                name=file_path,
+            )
+        )
     bounds_min, bounds_max = bounds_from_cameras([v.camera for v in views])
-    return CapturedScene(name=folder.name, views=views, bounds_min=bounds_min, bounds_max=bounds_max,
-                         metadata={"source": str(folder), "layout": "hdr-nerf-synthetic"})
+    return CapturedScene(
+        name=folder.name,
+        views=views,
+        bounds_min=bounds_min,
+        bounds_max=bounds_max,
+        metadata={"source": str(folder), "layout": "hdr-nerf-synthetic"},
+    )
 
 
 def _camera_angle_x(camera: Camera, folder: Path) -> float:
-    if not (math.isclose(camera.fx, camera.fy, rel_tol=1e-6)
-            and math.isclose(camera.cx, camera.width / 2) and math.isclose(camera.cy, camera.height / 2)):
-        raise DatasetError(f"{folder}: the HDR-NeRF synthetic layout stores only camera_angle_x, so "
-                           "cameras need fx == fy and a centred principal point; write --layout hdr-gs")
+    if not (
+        math.isclose(camera.fx, camera.fy, rel_tol=1e-6)
+        and math.isclose(camera.cx, camera.width / 2)
+        and math.isclose(camera.cy, camera.height / 2)
+    ):
+        raise DatasetError(
+            f"{folder}: the HDR-NeRF synthetic layout stores only camera_angle_x, so "
+            "cameras need fx == fy and a centred principal point; write --layout hdr-gs"
+        )
     return 2 * math.atan(0.5 * camera.width / camera.fx)
 
 

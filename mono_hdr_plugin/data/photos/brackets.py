@@ -111,24 +111,33 @@ def _linked(a: BracketCandidate, b: BracketCandidate, scale: float, tolerances: 
     if a.center is None or b.center is None:
         return False
     assert a.rotation is not None and b.rotation is not None  # structure from motion sets centre and rotation together
-    return (float(np.linalg.norm(a.center - b.center)) <= tolerances.position * scale
-            and _rotation_angle_deg(a.rotation, b.rotation) <= tolerances.angle_deg)
+    return (
+        float(np.linalg.norm(a.center - b.center)) <= tolerances.position * scale
+        and _rotation_angle_deg(a.rotation, b.rotation) <= tolerances.angle_deg
+    )
 
 
 def _check_not_all_equal(run: list[int], photos: list[BracketCandidate]) -> None:
     """A camera bracket whose exposures are all equal cannot be merged: the bracket varied something else."""
     members = [photos[i] for i in run]
     exposures = [p.exposure for p in members if p.exposure is not None]
-    if (len(members) > 1 and all(p.auto_bracket for p in members) and len(exposures) == len(members)
-            and all(same_exposure(exposure, exposures[0]) for exposure in exposures)):
-        raise DatasetError(f"{', '.join(p.name for p in members)}: the camera marked these photos as one exposure "
-                           f"bracket, but all have the exposure {members[0].exposure:.6g} s, so there is nothing "
-                           "to merge. The camera may have bracketed focus or white balance: check its bracketing "
-                           "mode, or pass --no-brackets to use them as single photos")
+    if (
+        len(members) > 1
+        and all(p.auto_bracket for p in members)
+        and len(exposures) == len(members)
+        and all(same_exposure(exposure, exposures[0]) for exposure in exposures)
+    ):
+        raise DatasetError(
+            f"{', '.join(p.name for p in members)}: the camera marked these photos as one exposure "
+            f"bracket, but all have the exposure {members[0].exposure:.6g} s, so there is nothing "
+            "to merge. The camera may have bracketed focus or white balance: check its bracketing "
+            "mode, or pass --no-brackets to use them as single photos"
+        )
 
 
-def detect_brackets(photos: list[BracketCandidate], scale: float,
-                    tolerances: BracketTolerances = BracketTolerances()) -> list[list[int]]:
+def detect_brackets(
+    photos: list[BracketCandidate], scale: float, tolerances: BracketTolerances = BracketTolerances()
+) -> list[list[int]]:
     """Partition photo indices (in file order) into viewpoint sets; a set of 2+ photos is a bracket.
 
     scale: the scene's size in structure-from-motion units (for the position tolerance).
@@ -146,8 +155,9 @@ def detect_brackets(photos: list[BracketCandidate], scale: float,
         for index in run[1:]:
             exposure = photos[index].exposure
             others = [photos[j].exposure for j in sets[-1]]
-            repeats = exposure is not None and any(other is not None and same_exposure(exposure, other)
-                                                   for other in others)
+            repeats = exposure is not None and any(
+                other is not None and same_exposure(exposure, other) for other in others
+            )
             if repeats:
                 sets.append([index])
             else:
@@ -167,8 +177,9 @@ def _stack(images: list[np.ndarray], exposures: list[float]):
 
     stack = ImageStack()
     for image, exposure in sorted(zip(images, exposures), key=lambda pair: pair[1]):
-        stack.append(Image(data=np.asarray(image, np.float64),
-                           metadata=Metadata(f_number=1.0, exposure_time=exposure, iso=12.5)))
+        stack.append(
+            Image(data=np.asarray(image, np.float64), metadata=Metadata(f_number=1.0, exposure_time=exposure, iso=12.5))
+        )
     return stack
 
 
@@ -190,8 +201,10 @@ def merge_weights(values: np.ndarray, response: np.ndarray | None) -> np.ndarray
 
 def check_exposures_differ(exposures: list[float], names: list[str]) -> None:
     if len(exposures) < 2 or all(same_exposure(e, exposures[0]) for e in exposures):
-        raise DatasetError(f"{', '.join(names)}: a bracket needs photos at two or more different exposures, these "
-                           f"have {', '.join(f'{e:.6g}' for e in exposures)} s; remove the set or fix the exposures")
+        raise DatasetError(
+            f"{', '.join(names)}: a bracket needs photos at two or more different exposures, these "
+            f"have {', '.join(f'{e:.6g}' for e in exposures)} s; remove the set or fix the exposures"
+        )
 
 
 def response_sample(image: np.ndarray) -> np.ndarray:
@@ -216,8 +229,11 @@ def recover_response(brackets: list[tuple[list[np.ndarray], list[float]]]) -> np
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # colour's notes on zero pixels: the weights exclude them
             curve = camera_response_functions_Debevec1997(
-                stack, sampling_function_kwargs={"samples": RESPONSE_SAMPLES}, l_s=RESPONSE_SMOOTHNESS,
-                n=RESPONSE_LEVELS)
+                stack,
+                sampling_function_kwargs={"samples": RESPONSE_SAMPLES},
+                l_s=RESPONSE_SMOOTHNESS,
+                n=RESPONSE_LEVELS,
+            )
         curves.append(np.log(np.clip(curve, 1e-6, None)))
     response = continue_ends(np.exp(np.mean(curves, axis=0)))
     response = np.maximum.accumulate(np.clip(response, 1e-9, None), axis=0)
@@ -238,8 +254,10 @@ def continue_ends(response: np.ndarray) -> np.ndarray:
     low, high = (int(round(limit * (RESPONSE_LEVELS - 1))) for limit in CONSTRAINED)
     log_codes, log_response = np.log(np.maximum(codes, 0.5)), np.log(np.clip(response, 1e-12, None))
     result = log_response.copy()
-    for inside, outside in ((slice(low, low + EDGE_WINDOW), slice(0, low)),
-                            (slice(high - EDGE_WINDOW, high), slice(high, RESPONSE_LEVELS))):
+    for inside, outside in (
+        (slice(low, low + EDGE_WINDOW), slice(0, low)),
+        (slice(high - EDGE_WINDOW, high), slice(high, RESPONSE_LEVELS)),
+    ):
         for channel in range(response.shape[1]):
             slope, intercept = np.polyfit(log_codes[inside], log_response[inside, channel], 1)
             result[outside, channel] = slope * log_codes[outside] + intercept
@@ -277,8 +295,9 @@ def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | No
     shared = well_exposed & (darker > DARK_FLOOR).all(-1)
     if shared.sum() < MIN_SHARED_PIXELS:
         return True
-    ratios = (np.log(np.clip(linearise(brighter, response)[shared].mean(-1), 1e-6, None))
-              - np.log(np.clip(linearise(darker, response)[shared].mean(-1), 1e-6, None)))
+    ratios = np.log(np.clip(linearise(brighter, response)[shared].mean(-1), 1e-6, None)) - np.log(
+        np.clip(linearise(darker, response)[shared].mean(-1), 1e-6, None)
+    )
     return bool(np.median(np.abs(ratios - np.median(ratios))) <= ALIGNED_LOG_SPREAD)
 
 
@@ -290,7 +309,7 @@ def aligned_members(images: list[np.ndarray], order: list[int], start: int, resp
     """
     position = order.index(start)
     kept = [start]
-    for side, towards_dark in ((order[:position][::-1], True), (order[position + 1:], False)):
+    for side, towards_dark in ((order[:position][::-1], True), (order[position + 1 :], False)):
         last = start
         for index in side:
             darker, brighter = (index, last) if towards_dark else (last, index)
@@ -301,8 +320,7 @@ def aligned_members(images: list[np.ndarray], order: list[int], start: int, resp
     return sorted(kept, key=order.index)
 
 
-def estimate_relative_exposures(images: list[np.ndarray], response: np.ndarray | None,
-                                names: list[str]) -> list[float]:
+def estimate_relative_exposures(images: list[np.ndarray], response: np.ndarray | None, names: list[str]) -> list[float]:
     """Exposure of each photo relative to the darkest, for brackets whose exposure times are unknown.
 
     Photos are ordered by mean brightness. Each neighbour pair's ratio is sum(brighter) /
@@ -316,16 +334,19 @@ def estimate_relative_exposures(images: list[np.ndarray], response: np.ndarray |
         mask = (images[brighter] > WELL_EXPOSED[0]) & (images[brighter] < WELL_EXPOSED[1])
         a, b = linearise(images[darker], response)[mask], linearise(images[brighter], response)[mask]
         if len(a) < MIN_SHARED_PIXELS:
-            raise DatasetError(f"{names[darker]}, {names[brighter]}: too few pixels are well exposed in "
-                               f"{names[brighter]} to tell the two exposures apart; give their exposure times "
-                               "with --exposure-csv")
+            raise DatasetError(
+                f"{names[darker]}, {names[brighter]}: too few pixels are well exposed in "
+                f"{names[brighter]} to tell the two exposures apart; give their exposure times "
+                "with --exposure-csv"
+            )
         ratio = float(b.sum() / max(a.sum(), 1e-12))
         relative[brighter] = relative[darker] * ratio
     return [relative[i] for i in range(len(images))]
 
 
-def merge_bracket(images: list[np.ndarray], exposures: list[float], response: np.ndarray | None,
-                  names: list[str]) -> np.ndarray:
+def merge_bracket(
+    images: list[np.ndarray], exposures: list[float], response: np.ndarray | None, names: list[str]
+) -> np.ndarray:
     """Linear HDR float32 [H, W, 3], in units of linear exposure per unit of relative exposure.
 
     images: photos of one viewpoint, [H, W, 3] in [0, 1] (code values, or linear when response is
@@ -337,13 +358,16 @@ def merge_bracket(images: list[np.ndarray], exposures: list[float], response: np
         raise DatasetError(f"{', '.join(names)}: the photos of this bracket differ in size ({sorted(sizes)})")
     from colour_hdri import image_stack_to_HDRI
 
-    merge = partial(image_stack_to_HDRI, weighting_function=partial(merge_weights, response=response),
-                    camera_response_functions=None if response is None else np.asarray(response))
+    merge = partial(
+        image_stack_to_HDRI,
+        weighting_function=partial(merge_weights, response=response),
+        camera_response_functions=None if response is None else np.asarray(response),
+    )
     rows = []
     for top in range(0, images[0].shape[0], MERGE_ROWS):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # colour's notes on zero pixels: they are clipped to epsilon
-            rows.append(merge(_stack([image[top:top + MERGE_ROWS] for image in images], exposures)))
+            rows.append(merge(_stack([image[top : top + MERGE_ROWS] for image in images], exposures)))
     hdr = np.concatenate(rows).astype(np.float32)
     if not np.isfinite(hdr).all():
         raise DatasetError(f"{', '.join(names)}: the merge produced NaN or Inf; check the photos are not empty")

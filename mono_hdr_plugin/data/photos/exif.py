@@ -70,11 +70,15 @@ def read_exif(image: Image.Image) -> PhotoExif:
         return details.get(number, exif.get(number))  # TIFFs may keep them in the main IFD
 
     camera = " ".join(str(exif.get(t, "")).strip("\x00 ") for t in (TAG_MAKE, TAG_MODEL)).strip()
-    return PhotoExif(exposure_time=exif_number(tag(TAG_EXPOSURE_TIME)), f_number=exif_number(tag(TAG_F_NUMBER)),
-                     iso=exif_number(tag(TAG_ISO)), focal_35mm=exif_number(tag(TAG_FOCAL_35MM)),
-                     camera=camera or None,
-                     timestamp=exif_timestamp(tag(TAG_DATE_TIME_ORIGINAL), tag(TAG_SUBSEC_TIME_ORIGINAL)),
-                     auto_bracket=tag(TAG_EXPOSURE_MODE) == EXPOSURE_MODE_AUTO_BRACKET)
+    return PhotoExif(
+        exposure_time=exif_number(tag(TAG_EXPOSURE_TIME)),
+        f_number=exif_number(tag(TAG_F_NUMBER)),
+        iso=exif_number(tag(TAG_ISO)),
+        focal_35mm=exif_number(tag(TAG_FOCAL_35MM)),
+        camera=camera or None,
+        timestamp=exif_timestamp(tag(TAG_DATE_TIME_ORIGINAL), tag(TAG_SUBSEC_TIME_ORIGINAL)),
+        auto_bracket=tag(TAG_EXPOSURE_MODE) == EXPOSURE_MODE_AUTO_BRACKET,
+    )
 
 
 def _rational(value: Fraction | float) -> IFDRational:
@@ -83,9 +87,16 @@ def _rational(value: Fraction | float) -> IFDRational:
     return IFDRational(value.numerator, value.denominator)
 
 
-def make_exif(exposure: Fraction | None = None, iso: int | None = None, f_number: Fraction | None = None,
-              focal_35mm: int | None = None, model: str | None = "StudioCam", orientation: int | None = None,
-              timestamp: float | None = None, exposure_mode: int | None = None) -> Image.Exif:
+def make_exif(
+    exposure: Fraction | None = None,
+    iso: int | None = None,
+    f_number: Fraction | None = None,
+    focal_35mm: int | None = None,
+    model: str | None = "StudioCam",
+    orientation: int | None = None,
+    timestamp: float | None = None,
+    exposure_mode: int | None = None,
+) -> Image.Exif:
     """An Exif block with the given fields, as a camera writes them (pass it to Image.save(exif=...))."""
     exif = Image.Exif()
     if model:

@@ -18,8 +18,26 @@ from mono_hdr_plugin.core.colour import ResponseCurve, decode_curve, encode_curv
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.photos.exif import PhotoExif
 
-RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf", ".orf", ".rw2",
-                ".pef", ".srw", ".3fr", ".iiq", ".rwl", ".x3f")
+RAW_SUFFIXES = (
+    ".dng",
+    ".cr2",
+    ".cr3",
+    ".crw",
+    ".nef",
+    ".nrw",
+    ".arw",
+    ".srf",
+    ".sr2",
+    ".raf",
+    ".orf",
+    ".rw2",
+    ".pef",
+    ".srw",
+    ".3fr",
+    ".iiq",
+    ".rwl",
+    ".x3f",
+)
 RawResponse = ResponseCurve
 """The standard response curves a RAW photo's LDR view can be encoded with."""
 
@@ -34,12 +52,20 @@ def read_raw(path: Path) -> tuple[np.ndarray, PhotoExif]:
 
     try:
         with rawpy.imread(str(path)) as raw:
-            pixels = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16, use_camera_wb=True,
-                                     output_color=rawpy.ColorSpace.sRGB, adjust_maximum_thr=0.0)
+            pixels = raw.postprocess(
+                gamma=(1, 1),
+                no_auto_bright=True,
+                output_bps=16,
+                use_camera_wb=True,
+                output_color=rawpy.ColorSpace.sRGB,
+                adjust_maximum_thr=0.0,
+            )
             other = raw.other
     except (rawpy.LibRawError, rawpy.NotSupportedError, OSError, ValueError) as error:
-        raise DatasetError(f"{path}: LibRaw cannot read this RAW file ({type(error).__name__}: {error}); export it "
-                           "again from the camera, convert it to DNG, or move it out of the folder") from error
+        raise DatasetError(
+            f"{path}: LibRaw cannot read this RAW file ({type(error).__name__}: {error}); export it "
+            "again from the camera, convert it to DNG, or move it out of the folder"
+        ) from error
     return pixels.astype(np.float32) / 65535.0, raw_metadata(other)
 
 
@@ -51,8 +77,12 @@ def raw_metadata(other) -> PhotoExif:
         return value if np.isfinite(value) and value > 0 else None
 
     known_time = isinstance(other.timestamp, datetime) and other.timestamp.year > 1970  # 0 means none
-    return PhotoExif(exposure_time=positive(other.shutter_speed), f_number=positive(other.aperture),
-                     iso=positive(other.iso_speed), timestamp=other.timestamp.timestamp() if known_time else None)
+    return PhotoExif(
+        exposure_time=positive(other.shutter_speed),
+        f_number=positive(other.aperture),
+        iso=positive(other.iso_speed),
+        timestamp=other.timestamp.timestamp() if known_time else None,
+    )
 
 
 def encode(linear: np.ndarray, response: RawResponse) -> np.ndarray:

@@ -33,7 +33,7 @@ class Frame:
 def sharpness(image: np.ndarray) -> float:
     """Variance of the 4-neighbour Laplacian of the luminance of [H, W, 3] pixels in [0, 1]."""
     luma = image.astype(np.float32) @ LUMA
-    laplacian = (luma[:-2, 1:-1] + luma[2:, 1:-1] + luma[1:-1, :-2] + luma[1:-1, 2:] - 4 * luma[1:-1, 1:-1])
+    laplacian = luma[:-2, 1:-1] + luma[2:, 1:-1] + luma[1:-1, :-2] + luma[1:-1, 2:] - 4 * luma[1:-1, 1:-1]
     return float(laplacian.var())
 
 
@@ -41,8 +41,14 @@ def _first_line(error: Exception) -> str:
     return next((line for line in str(error).splitlines() if line.strip()), type(error).__name__)
 
 
-def extract_frames(video: Path, folder: Path, fps: float, oversample: int = 3, min_sharpness: float = 0.5,
-                   console: Console | None = None) -> tuple[list[Frame], list[Frame]]:
+def extract_frames(
+    video: Path,
+    folder: Path,
+    fps: float,
+    oversample: int = 3,
+    min_sharpness: float = 0.5,
+    console: Console | None = None,
+) -> tuple[list[Frame], list[Frame]]:
     """Write the kept frames to `folder` as frame_00001.png ...; returns (kept, dropped) candidates.
 
     fps: frames per second of clip to keep; min_sharpness: a kept frame below this fraction of the
@@ -59,8 +65,10 @@ def extract_frames(video: Path, folder: Path, fps: float, oversample: int = 3, m
         reader = imageio_ffmpeg.read_frames(str(video), output_params=["-vf", f"fps={fps * oversample:g}"])
         meta = next(reader)
     except (OSError, RuntimeError, StopIteration) as error:
-        raise DatasetError(f"{video}: ffmpeg finds no video frames in it ({_first_line(error)}); check that "
-                           "the file is a complete video (MP4, MOV, ...) that plays elsewhere") from error
+        raise DatasetError(
+            f"{video}: ffmpeg finds no video frames in it ({_first_line(error)}); check that "
+            "the file is a complete video (MP4, MOV, ...) that plays elsewhere"
+        ) from error
     width, height = meta["size"]
     rate = fps * oversample
     folder.mkdir(parents=True, exist_ok=True)
@@ -82,8 +90,10 @@ def extract_frames(video: Path, folder: Path, fps: float, oversample: int = 3, m
                 frame.path = folder / f"frame_{len(best):05d}.png"  # replaces a less sharp one of its run
                 write_png(frame.path, pixels / np.float32(255))
         except (OSError, RuntimeError) as error:
-            raise DatasetError(f"{video}: ffmpeg stopped after {len(candidates)} frame(s) ({_first_line(error)}); "
-                               "the file may be truncated: export it again") from error
+            raise DatasetError(
+                f"{video}: ffmpeg stopped after {len(candidates)} frame(s) ({_first_line(error)}); "
+                "the file may be truncated: export it again"
+            ) from error
     if not candidates:
         raise DatasetError(f"{video}: the video has no frames that ffmpeg can decode; record or export it again")
     threshold = min_sharpness * float(np.median([frame.sharpness for frame in best]))
