@@ -5,12 +5,14 @@ budget), then times each part of a step on its own with that step's real sizes (
 seconds of `--repeats` runs, one torch thread unless --threads says otherwise), and the
 whole step. Prints a Markdown table; `--out FILE` writes it too.
 
-    python benchmarks/gs_step_profile.py --scene demo --warmup 300 --repeats 11 --out benchmarks/results/gs_step_profile.md
+    python benchmarks/gs_step_profile.py --scene demo --warmup 300 --repeats 11 \\
+        --out benchmarks/results/gs_step_profile.md
 """
 
 import os
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -37,7 +39,8 @@ def cpu_median(function, repeats: int) -> float:
     return statistics.median(times)
 
 
-def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str, float]], dict]:
+def warmed_trainer(scene_name: str, warmup: int) -> Trainer:
+    """Mono-HDR-GS (cpu preset) trained `warmup` steps, so the Gaussians reach their budget."""
     scene = load_scene(DataConfig(scene=scene_name))
     preset = GaussianBackbone.presets()["cpu"]
     config = train_config_for(type(preset))(
@@ -51,26 +54,26 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
     trainer = Trainer(config, "gs", scene)
     for _ in range(warmup):
         trainer.train_step()
-    backbone, method = trainer.backbone, trainer.method
-    view = scene.train[0]
-    camera, target = view.camera, view.image
+    return trainer
+
+
+def rasteriser_parts(trainer: Trainer, zero: Callable[[], None]) -> tuple[list[tuple[str, Callable[[], None]]], int]:
+    """Projection, SH colours and compositing of training view 0, each forward + backward; and how
+    many Gaussians that view sees."""
+    backbone, camera = trainer.backbone, trainer.scene.train[0].camera
     g = {name: getattr(backbone, name) for name in GAUSSIAN_PARAMETERS}
 
-    def zero():
-        for value in list(g.values()) + list(method.parameters()):
-            value.grad = None
+    def activated(detach: bool) -> tuple:
+        value = {name: g[name].detach() if detach else g[name] for name in ("means", "quats", "log_scales")}
+        opacity = g["opacity_logits"].detach() if detach else g["opacity_logits"]
+        return value["means"], value["quats"], torch.exp(value["log_scales"]), torch.sigmoid(opacity)
 
     def projection():
         zero()
-        p = project_gaussians(
-            g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]), camera
-        )
+        p = project_gaussians(*activated(detach=False), camera)
         (p.means2d.sum() + p.conics.sum() + p.depths.sum()).backward()
 
-    projected = project_gaussians(
-        g["means"], g["quats"], torch.exp(g["log_scales"]), torch.sigmoid(g["opacity_logits"]), camera
-    )
-    index = projected.index
+    index = project_gaussians(*activated(detach=False), camera).index
 
     def colours():
         zero()
@@ -78,13 +81,7 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
             backbone.active_sh_degree, g["sh_dc"], g["sh_rest"], g["means"], index, camera.center
         ).sum().backward()
 
-    detached = project_gaussians(
-        g["means"].detach(),
-        g["quats"].detach(),
-        torch.exp(g["log_scales"].detach()),
-        torch.sigmoid(g["opacity_logits"].detach()),
-        camera,
-    )
+    detached = project_gaussians(*activated(detach=True), camera)
     values = torch.rand(index.numel(), 6, requires_grad=True)
     weights = torch.rand(camera.height, camera.width, 6)
 
@@ -94,22 +91,34 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         image, _ = rasterize(detached, values)
         (image * weights).sum().backward()
 
-    ldr_colours = torch.rand(index.numel(), 3, requires_grad=True)
+    parts = [
+        ("projection (C++ kernel), forward + backward", projection),
+        ("SH colours of the visible Gaussians (C++), forward + backward", colours),
+        ("compositing 6 channels LDR + HDR (C++), forward + backward", compositing),
+    ]
+    return parts, int(index.numel())
+
+
+def method_and_optimiser_parts(
+    trainer: Trainer, visible: int, zero: Callable[[], None]
+) -> list[tuple[str, Callable[[], None]]]:
+    """L2H-CC, H2L-CC with the losses, Adam and the MCMC strategy's per-step work."""
+    backbone, method, view = trainer.backbone, trainer.method, trainer.scene.train[0]
+    ldr_colours = torch.rand(visible, 3, requires_grad=True)
+    hdr_image = (torch.rand(view.camera.height, view.camera.width, 3) * 10).requires_grad_()
 
     def l2h():
         zero()
         method.l2h(ldr_colours).sum().backward()
 
-    hdr_image = (torch.rand(camera.height, camera.width, 3) * 10).requires_grad_()
-
     def h2l_and_losses():
         zero()
         hdr_image.grad = None
-        ldr = torch.rand_like(target).requires_grad_()
+        ldr = torch.rand_like(view.image).requires_grad_()
         loss = (
-            l1_dssim_loss(ldr, target)
+            l1_dssim_loss(ldr, view.image)
             + l1_dssim_loss(normalise_hdr(hdr_image), normalise_hdr(view.hdr))
-            + l1_dssim_loss(method.h2l(normalise_hdr(hdr_image)), target)
+            + l1_dssim_loss(method.h2l(normalise_hdr(hdr_image)), view.image)
         )
         loss.backward()
 
@@ -123,21 +132,32 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         backbone.config.strategy.add_position_noise(backbone, 1e-5)
         backbone.regularisation()
 
-    parts = [
-        ("projection (C++ kernel), forward + backward", projection),
-        ("SH colours of the visible Gaussians (C++), forward + backward", colours),
-        ("compositing 6 channels LDR + HDR (C++), forward + backward", compositing),
+    return [
         ("L2H-CC on the visible Gaussians, forward + backward", l2h),
         ("H2L-CC and the three L1 + D-SSIM losses, forward + backward", h2l_and_losses),
         ("Adam (fused), all parameters", adam),
         ("MCMC position noise and regularisers", strategy),
     ]
+
+
+def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str, float]], dict]:
+    trainer = warmed_trainer(scene_name, warmup)
+    backbone, camera = trainer.backbone, trainer.scene.train[0].camera
+
+    def zero():
+        for name in GAUSSIAN_PARAMETERS:
+            getattr(backbone, name).grad = None
+        for value in trainer.method.parameters():
+            value.grad = None
+
+    parts, visible = rasteriser_parts(trainer, zero)
+    parts += method_and_optimiser_parts(trainer, visible, zero)
     seconds = [(name, cpu_median(function, repeats)) for name, function in parts]
     step = cpu_median(trainer.train_step, repeats)
     facts = {
         "scene": scene_name,
         "gaussians": backbone.num_gaussians,
-        "visible": int(index.numel()),
+        "visible": visible,
         "pixels": camera.width * camera.height,
         "step": step,
         "threads": torch.get_num_threads(),

@@ -1,6 +1,8 @@
 """HDR from a (simulated) real camera, end to end, against the studio's truth.
 
-    python benchmarks/studio_capture.py --out outputs/studio_capture  # then copy results.{json,md} to benchmarks/results/studio_capture/
+    python benchmarks/studio_capture.py --out outputs/studio_capture
+
+(then copy results.{json,md} to benchmarks/results/studio_capture/)
 
 1. The studio photographer (mono_hdr_plugin.apps.studio.shoot) photographs the training cameras of a
    built-in scene as JPEGs with EXIF: auto-exposure per view, a bracket at every 4th viewpoint,

@@ -1,7 +1,8 @@
 """How fast the viewer renders a checkpoint: seconds per frame and pixels per second at the
 viewer's still and moving sizes, and the size it picks while the camera moves.
 
-    python benchmarks/viewer_speed.py --checkpoint outputs/demo/checkpoints/latest.pt --out benchmarks/results/viewer_speed.json
+    python benchmarks/viewer_speed.py --checkpoint outputs/demo/checkpoints/latest.pt \\
+        --out benchmarks/results/viewer_speed.json
 
 Run on a quiet machine: the figures are wall-clock seconds of one render thread.
 """

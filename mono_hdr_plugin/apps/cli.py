@@ -126,7 +126,7 @@ def command_eval(config: EvalConfig) -> None:
     from mono_hdr_plugin.training.evaluation import evaluate
     from mono_hdr_plugin.training.trained import load_trained_model
 
-    claim = {"command": "eval", "owned": EVAL_OUTPUTS, "overwrite": config.overwrite}
+    claim: dict[str, Any] = {"command": "eval", "owned": EVAL_OUTPUTS, "overwrite": config.overwrite}
     check_output(config.out, inputs=[config.checkpoint], **claim)  # before the slow load
     run = load_trained_model(config.checkpoint, data_path=config.data, scene_name=config.scene)
     with claim_output(config.out, inputs=[config.checkpoint, run.config.data.data], **claim) as output:
@@ -156,7 +156,7 @@ def command_bench(argv: list[str]) -> None:
     import mono_hdr_plugin.apps.bench  # noqa: F401 - registers the built-in benchmarks
     from mono_hdr_plugin.core.registry import BENCHMARKS
 
-    benchmarks = {name: entry.plugin for name, entry in BENCHMARKS.available().items()}
+    benchmarks: dict[str, Any] = {name: entry.plugin for name, entry in BENCHMARKS.available().items()}
     config = tyro.extras.subcommand_cli_from_dict(
         benchmarks,
         args=argv,
@@ -169,9 +169,10 @@ def command_bench(argv: list[str]) -> None:
 
 
 def command_backbones(config: BackbonesConfig) -> None:
+    from mono_hdr_plugin.core.backbone import Backbone
     from mono_hdr_plugin.core.registry import BACKBONES
 
-    def describe(cls: type) -> tuple[str, ...]:
+    def describe(cls: type[Backbone]) -> tuple[str, ...]:
         return (
             ", ".join(cls.presets()),
             cls.loss_kind,
@@ -187,9 +188,9 @@ class MethodsConfig:
 
 
 def command_methods(config: MethodsConfig) -> None:
-    from mono_hdr_plugin.methods.base import METHODS
+    from mono_hdr_plugin.methods.base import METHODS, HdrMethod
 
-    def describe(cls: type) -> tuple[str]:
+    def describe(cls: type[HdrMethod]) -> tuple[str]:
         flags = cls.own_flags()
         return (_first_line(cls.__doc__) + (f"\nits own flags: {', '.join(flags)}" if flags else ""),)
 
@@ -251,24 +252,24 @@ def print_metrics(metrics: dict, path: Path) -> None:
 def _commands() -> dict[str, tuple[str, Callable[[list[str]], None]]]:
     """name -> (help line, runner taking the remaining argv)."""
 
-    def simple(config_class: type, function: Callable, prog: str) -> Callable[[list[str]], None]:
+    def simple(config_class: type, function: Callable, prog: str) -> tuple[str, Callable[[list[str]], None]]:
         def parse_check_run(argv: list[str]) -> None:
-            config = tyro.cli(config_class, args=argv, prog=f"mono-hdr {prog}", description=config_class.__doc__)
+            config: Any = tyro.cli(config_class, args=argv, prog=f"mono-hdr {prog}", description=config_class.__doc__)
             check_flags(config)
             function(config)
 
-        return parse_check_run
+        return config_class.__doc__ or "", parse_check_run
 
     commands = {
         "train": ("train <backbone>: train a model (see `mono-hdr train --help`)", command_train),
-        "eval": (EvalConfig.__doc__, simple(EvalConfig, command_eval, "eval")),
-        "backbones": (BackbonesConfig.__doc__, simple(BackbonesConfig, command_backbones, "backbones")),
-        "methods": (MethodsConfig.__doc__, simple(MethodsConfig, command_methods, "methods")),
-        "layouts": (LayoutsConfig.__doc__, simple(LayoutsConfig, command_layouts, "layouts")),
+        "eval": simple(EvalConfig, command_eval, "eval"),
+        "backbones": simple(BackbonesConfig, command_backbones, "backbones"),
+        "methods": simple(MethodsConfig, command_methods, "methods"),
+        "layouts": simple(LayoutsConfig, command_layouts, "layouts"),
         "bench": ("bench curves|paper|raster: what accuracy costs in time (JSON, Markdown, plots)", command_bench),
     }
     for name, (config_class, function) in _application_commands().items():
-        commands[name] = (config_class.__doc__, simple(config_class, function, name))
+        commands[name] = simple(config_class, function, name)
     return commands
 
 

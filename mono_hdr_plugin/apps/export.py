@@ -9,7 +9,7 @@ surfaces their renders show (where the training views' rays terminate).
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch
@@ -72,7 +72,8 @@ def converters_paths(ply: Path) -> tuple[Path, Path]:
 
 def export_splats(model: TrainedModel, path: Path) -> list[Path]:
     """The Gaussians as a 3DGS PLY and the method's converters beside it."""
-    model.pipeline.backbone.export_ply(path)
+    backbone: Any = model.pipeline.backbone  # export_command chose this path because it has export_ply
+    backbone.export_ply(path)
     return [path, *save_converters(model, path)]
 
 
@@ -82,9 +83,9 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
     weights_path, description_path = converters_paths(ply)
     method = model.pipeline.method
     arrays = {name: value.detach().float().numpy() for name, value in method.state_dict().items()}
-    with atomic_path(weights_path) as temporary:
-        with open(temporary, "wb") as handle:  # np.savez on a path would append another .npz
-            np.savez(handle, **arrays)
+    # np.savez on a path would append another .npz, so it writes to an open file
+    with atomic_path(weights_path) as temporary, open(temporary, "wb") as handle:
+        np.savez(handle, **arrays)
     description = {
         "format": CONVERTERS_FORMAT,
         "version": CONVERTERS_VERSION,
@@ -166,11 +167,11 @@ def point_cloud(
         points.append(found)
         colours.append(shown[rays])
         hdr.append(frame.hdr.reshape(-1, 3)[rays])
-    points, colours, hdr = torch.cat(points), torch.cat(colours), torch.cat(hdr)
-    if points.shape[0] > max_points:
-        keep = torch.randperm(points.shape[0], generator=torch.Generator().manual_seed(0))[:max_points]
-        points, colours, hdr = points[keep], colours[keep], hdr[keep]
-    return points, colours, hdr
+    all_points, all_colours, all_hdr = torch.cat(points), torch.cat(colours), torch.cat(hdr)
+    if all_points.shape[0] > max_points:
+        keep = torch.randperm(all_points.shape[0], generator=torch.Generator().manual_seed(0))[:max_points]
+        all_points, all_colours, all_hdr = all_points[keep], all_colours[keep], all_hdr[keep]
+    return all_points, all_colours, all_hdr
 
 
 def write_point_cloud(path: Path, points: Tensor, colours: Tensor, hdr: Tensor) -> Path:

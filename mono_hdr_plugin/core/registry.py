@@ -73,7 +73,7 @@ class PluginRegistry(Generic[Plugin]):
                 if entry_point.name in self._entries and self._entries[entry_point.name].plugin is plugin:
                     continue  # the module registered itself with the decorator on import
                 self.register(entry_point.name, source)(plugin)
-            except Exception as error:  # a broken plugin must not take the others down
+            except Exception as error:  # noqa: BLE001 - a broken plugin must not take the others down
                 message = f"{type(error).__name__}: {error}"
                 self._broken[entry_point.name] = f"{source} failed to load: {message}"
                 warnings.warn(

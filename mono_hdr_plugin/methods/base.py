@@ -140,7 +140,7 @@ class HdrMethod(nn.Module):
         """Images at `exposure` seconds (a tensor when the exposure is learned: gradients reach it)."""
         raise NotImplementedError
 
-    def render(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+    def render(self, features: LdrFeatures, exposure: float | Tensor) -> MethodOutput:
         """forward plus the auxiliary renders (NeRF's coarse pass), LDR only."""
         output = self(features, exposure)
         output.auxiliary_ldr = [self(aux, exposure).ldr for aux in features.auxiliary]

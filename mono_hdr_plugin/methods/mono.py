@@ -29,7 +29,7 @@ class MonoHDR(HdrMethod):
         self.l2h = self.l2h_class(config.hidden)
         self.h2l = self.h2l_class(config.hidden) if self.h2l_class is not None else None
 
-    def forward(self, features: LdrFeatures, exposure: float) -> MethodOutput:
+    def forward(self, features: LdrFeatures, exposure: float | Tensor) -> MethodOutput:
         hdr_colors = self.l2h(features.colors if features.l2h_inputs is None else features.l2h_inputs)
         image = features.composite(torch.cat([features.colors, hdr_colors], dim=-1))
         ldr, hdr = image[..., :3], image[..., 3:]

@@ -12,7 +12,7 @@ claims --out first (one run per folder, no earlier run replaced unasked; docs/ro
 import json
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -184,26 +184,28 @@ class Trainer:
         self.train_seconds += elapsed
         self.recent_step_seconds.append(elapsed)
         self._update_run_length()
-        record = {name: value.item() for name, value in terms.items()}
+        record: dict[str, Any] = {name: value.item() for name, value in terms.items()}
         record["loss"] = loss.item()
         record["ldr_psnr"] = psnr(output.ldr.detach().clamp(0, 1), targets.ldr)
         record["skipped"] = bool(bad)
         record["bad_tensors"] = bad
         return record
 
-    def fit(self, hooks: list[TrainingHook] = ()) -> None:
+    def fit(self, hooks: Sequence[TrainingHook] = ()) -> None:
         """Train until --max-steps or --max-seconds, calling `hooks` after every good step.
 
         A step with a non-finite loss or gradient is skipped; --nan-patience of them in a row
         raise TrainingDiverged.
         """
         failures = taken = good = 0
+        bad_tensors: list[str] = []
         for hook in hooks:
             hook.on_start(self)
         try:
             while not self.finished:
                 record = self.train_step()
                 taken += 1
+                bad_tensors = record["bad_tensors"]
                 if record["skipped"]:
                     failures += 1
                     console.print(
@@ -223,14 +225,14 @@ class Trainer:
             if taken and not good:  # the model is the untrained one: nothing to save or score
                 raise TrainingDiverged(
                     f"none of the {taken} steps had a finite loss and gradients (last: "
-                    f"{', '.join(record['bad_tensors'])}), so nothing was trained, saved or scored: lower the "
+                    f"{', '.join(bad_tensors)}), so nothing was trained, saved or scored: lower the "
                     "learning rates or check the data for NaN/Inf"
                 )
         finally:
             for hook in hooks:
                 hook.on_end(self)
 
-    def train(self, extra_hooks: list[TrainingHook] = ()) -> dict[str, Any]:
+    def train(self, extra_hooks: Sequence[TrainingHook] = ()) -> dict[str, Any]:
         """The command line's run: progress, periodic eval and checkpoints (and `extra_hooks`: the
         viewer's); then save, evaluate and write OUT/metrics.json (and renders). Ctrl-C stops after
         the step in progress, saves a checkpoint and raises TrainingInterrupted."""

@@ -2,10 +2,12 @@
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 import torch
 from gs_scenes import make_camera
+from plyfile import PlyParseError
 
 from backbones.gs import (
     DefaultStrategy,
@@ -121,7 +123,7 @@ class TestInitialisation:
 
     @pytest.mark.parametrize("config_class", [GaussianConfig, McmcStrategy, DefaultStrategy])
     def test_config_fields_documented(self, config_class):
-        source = open(config_class.__module__.replace(".", "/") + ".py").read()
+        source = Path(config_class.__module__.replace(".", "/") + ".py").read_text()
         body = source.split(f"class {config_class.__name__}", 1)[1]
         for f in dataclasses.fields(config_class):
             after = body.split(f"    {f.name}:", 1)[1].splitlines()[1].strip()
@@ -322,7 +324,7 @@ class TestPly:
         with pytest.raises(FileNotFoundError, match="no PLY"):
             load_ply(tmp_path / "missing.ply")
         (tmp_path / "junk.ply").write_text("not a ply")
-        with pytest.raises(Exception):
+        with pytest.raises(PlyParseError):
             load_ply(tmp_path / "junk.ply")
 
 

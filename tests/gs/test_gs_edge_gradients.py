@@ -166,7 +166,7 @@ class TestEdgeCase:
                 numeric,
                 rtol=2e-2,
                 atol=5e-3 * scale,
-                msg=lambda message: f"{case}: gradient of {name}\n{message}",
+                msg=lambda message, name=name: f"{case}: gradient of {name}\n{message}",
             )
 
     def test_kernel_projection_matches_torch_twin(self, case):
@@ -186,7 +186,7 @@ class TestEdgeCase:
                 want,
                 rtol=1e-3,
                 atol=1e-4 * scale,
-                msg=lambda message: f"{case}: gradient of {name}\n{message}",
+                msg=lambda message, name=name: f"{case}: gradient of {name}\n{message}",
             )
 
     def test_kernel_image_gradients_match_torch_twin(self, case):
@@ -224,7 +224,7 @@ class TestEdgeCase:
                     want[row],
                     rtol=1e-3,
                     atol=2e-4 * scale,
-                    msg=lambda message: f"{case}: gradient of {name}[{row}]\n{message}",
+                    msg=lambda message, name=name, row=row: f"{case}: gradient of {name}[{row}]\n{message}",
                 )
 
 

@@ -46,19 +46,17 @@ class TestTwoStepsOfEveryMethod:
 class TestResumeAcrossDensification:
     def test_checkpoint_after_densify_restores_same_next_loss(self, tmp_path, voxel_scene):
         # max_steps = 30k keeps the schedule unscaled: refine at steps 2 and 4
-        overrides = dict(
-            strategy=DefaultStrategy(
-                refine_start=2, refine_every=2, min_refine_every=1, grad_threshold=0.0, reset_opacity_every=10**6
-            )
+        strategy = DefaultStrategy(
+            refine_start=2, refine_every=2, min_refine_every=1, grad_threshold=0.0, reset_opacity_every=10**6
         )
-        trainer = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, **overrides)
+        trainer = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, strategy=strategy)
         for _ in range(5):
             trainer.train_step()
         count = trainer.backbone.means.shape[0]
         assert count != 500  # densification changed the number of Gaussians
         trainer.save()
         expected = trainer.train_step()["loss"]
-        resumed = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, **overrides)
+        resumed = gs_trainer(tmp_path, voxel_scene, max_steps=30_000, strategy=strategy)
         resumed.restore(load_checkpoint(trainer.checkpoint_path()))
         assert resumed.backbone.means.shape[0] == count
         assert resumed.train_step()["loss"] == pytest.approx(expected, rel=1e-5)

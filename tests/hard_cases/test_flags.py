@@ -72,7 +72,7 @@ def leaves(config, path=()):
 
 def numeric_leaves():
     for name, config in default_configs().items():
-        for path, annotation, owner in leaves(config):
+        for path, annotation, _owner in leaves(config):
             if numeric_type(annotation):
                 yield pytest.param(name, path, integer_type(annotation), id=f"{name}:{'.'.join(path)}")
 

@@ -87,7 +87,7 @@ def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoS
     focal_35mm = round(cameras[0].fx * 36.0 / max(scene.width, scene.height))
     folder.mkdir(parents=True, exist_ok=True)
     names, times = [], []
-    for index, camera in enumerate(cameras):
+    for index in range(len(cameras)):
         exposure = exposures[index % len(exposures)]
         # The scene's radiance is scaled for exposures around 2 s; photographing at 1.5 s times
         # the ratio to the first EXIF time keeps the photos well exposed whatever EXIF says.

@@ -225,9 +225,10 @@ class TestStudioDataset:
 
     def test_multi_protocol_seeded(self, tiny_demo):
         captured = studio_captured_scene(tiny_demo)
-        pick = lambda seed: [
-            v.exposure for v in to_scene_data(captured, DataConfig(protocol="multi", exposure_seed=seed)).train
-        ]
+
+        def pick(seed: int) -> list[float]:
+            return [v.exposure for v in to_scene_data(captured, DataConfig(protocol="multi", exposure_seed=seed)).train]
+
         assert pick(0) == pick(0) and set(pick(0)) <= {0.125, 2.0, 32.0}
         assert any(pick(0) != pick(seed) for seed in range(1, 5))
         data = to_scene_data(captured, DataConfig(protocol="multi"))

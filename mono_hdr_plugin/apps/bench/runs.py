@@ -382,7 +382,7 @@ def _run_with_retries(spec: RunSpec, budget: RunBudget, runs_dir: Path, executor
     while True:
         try:
             return run_row(spec, budget, str(runs_dir), executor.cpus_per_run)
-        except Exception as error:  # recorded, never silently dropped
+        except Exception as error:  # noqa: BLE001 - any failure of a run is recorded, never silently dropped
             console.print(f"[yellow]{spec.key}: attempt {attempt} failed: {error}")
             if attempt > executor.retries:
                 return failed_row(spec, error, attempt)
@@ -410,7 +410,7 @@ def _run_ray(specs, budget, store, runs_dir, executor, on_row) -> None:
             spec = futures.pop(ready[0])
             try:
                 row = ray.get(ready[0])
-            except Exception as error:  # the task raised on every attempt, or its worker died
+            except Exception as error:  # noqa: BLE001 - the task raised on every attempt, or its worker died
                 row = failed_row(spec, _ray_cause(error), executor.retries + 1)
             store.add(row)
             on_row(row)

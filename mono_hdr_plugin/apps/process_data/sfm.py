@@ -1,9 +1,10 @@
 """Stage 3: camera poses by structure from motion (pycolmap on the CPU over every staged photo)."""
 
 import math
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from pathlib import Path
-from typing import AbstractSet, Any
+from typing import Any
 
 from rich.console import Console
 

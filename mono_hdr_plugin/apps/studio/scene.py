@@ -215,7 +215,10 @@ def projector(
     height = max(2, round(width / aspect))
     image = np.ones((height, width), np.float32)
     if soft_edge > 0:
-        ramp = lambda n: np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / (soft_edge * width), 0, 1)
+
+        def ramp(n: int) -> np.ndarray:
+            return np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / (soft_edge * width), 0, 1)
+
         image = np.outer(ramp(height), ramp(width))
         image = image * image * (3 - 2 * image)  # smoothstep: no kink where the fade starts
     return {
