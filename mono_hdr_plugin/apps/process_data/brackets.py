@@ -64,8 +64,7 @@ def scene_scale(model) -> float:
 
 def bracket_candidates(photos: list[PhotoRecord], staged: list[StagedPhoto], model) -> list[BracketCandidate]:
     """What bracket detection needs of each photo; poses seen through fewer than RELIABLE_POINTS of
-    the median photo's 3D points are left out (on the studio captures, a bright bracket member seen
-    through a third of the median's points was placed 2 % of the scene and 1.6 degrees off)."""
+    the median photo's 3D points are left out (such poses are placed off: docs/own_photos.md)."""
     placed = [image for image in model.images.values() if image.has_pose]
     enough = RELIABLE_POINTS * float(np.median([image.num_points3D for image in placed]))
     poses = {image.name: image for image in placed if image.num_points3D >= enough}

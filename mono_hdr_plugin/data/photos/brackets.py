@@ -42,23 +42,19 @@ DARK_FLOOR = 0.05
 JPEG) to measure an exposure ratio with."""
 ALIGNED_LOG_SPREAD = 0.25
 """Neighbours in a bracket whose per-pixel log exposure ratios spread (median absolute deviation)
-more than this do not show one view. Measured on the studio's textured-desk captures (3 stops
-apart): 0.06-0.17 for true neighbours, the high end where the darker photo is dim and only the
-glow around the bulb is well exposed in the brighter one; 0.33-0.68 for photos of viewpoints
-14-27 degrees away (the next viewpoint, 3.4 degrees away, gives 0.14-0.35). A correlation of the
-log pixels, used before, fell to 0.50 for true neighbours there, below the 0.53 of other
-viewpoints, because JPEG blurs a bright edge differently at each exposure."""
+more than this do not show one view (the spreads it was chosen from: docs/own_photos.md,
+"How the bracket thresholds were chosen")."""
 RESPONSE_PIXELS = 200_000
 """Photos are subsampled to about this many pixels for the response recovery (it uses histograms)."""
 RESPONSE_SAMPLES = 250
-"""Histogram quantiles per photo that constrain the response (colour-hdri's default 1000 makes its
-dense least-squares solve 16 times slower for the same curve)."""
+"""Histogram quantiles per photo that constrain the response (fewer than colour-hdri's default
+1000, which costs far more for the same curve: docs/own_photos.md)."""
 CONSTRAINED = (0.08, 0.9)
 """Code values between which Debevec's recovered response is trusted (see continue_ends)."""
 EDGE_WINDOW = 30
 RESPONSE_SMOOTHNESS = 100.0
-"""Debevec's lambda. colour-hdri's 30 lets noisy JPEG histograms bend the dark end by 0.7 in log
-exposure on the studio captures; 100 keeps it within 0.25 (the middle within 0.03 either way)."""
+"""Debevec's lambda: smoother than colour-hdri's 30, which lets noisy JPEG histograms bend the dark
+end of the response (docs/own_photos.md)."""
 MERGE_ROWS = 256
 """Merge this many image rows at a time: memory stays bounded for large photos."""
 
@@ -86,8 +82,8 @@ class BracketTolerances:
     max_gap: float = 2.0
     """Seconds from the end of one photo to the start of the next."""
     position: float = 0.03
-    """Distance between camera centres, as a fraction of the scene scale (structure from motion
-    places the members of a tripod bracket up to ~2 % apart, the darkest and brightest worst)."""
+    """Distance between camera centres, as a fraction of the scene scale (structure from motion does
+    not place the members of a tripod bracket exactly together: docs/own_photos.md)."""
     angle_deg: float = 3.0
     """Angle between the camera orientations."""
 
