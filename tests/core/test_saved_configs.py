@@ -12,7 +12,7 @@ from mono_hdr_plugin.methods.base import MethodOptions, build_method, method_con
 from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
 from mono_hdr_plugin.training.checkpoints import load_checkpoint, save_checkpoint
 from mono_hdr_plugin.training.config import saved_train_config, train_config_for
-from mono_hdr_plugin.training.trained import load_pipeline
+from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer, build_trainer
 
 
@@ -101,7 +101,7 @@ class TestMethodOptions:
         old = {**json.loads(payload["config"]), "hdr": OLD_HDR_NERF}
         save_checkpoint(path, {**payload, "config": json.dumps(old)})
 
-        run = load_pipeline(path, scene=voxel_scene)
+        run = load_trained_model(path, scene=voxel_scene)
         assert run.pipeline.method.options == OLD_OPTIONS and run.config.hdr.options == OLD_OPTIONS
         config.resume = True
         resumed = build_trainer(config, "voxel-grid", voxel_scene)
