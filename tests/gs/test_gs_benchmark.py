@@ -10,7 +10,8 @@ import torch
 from backbones.gs import benchmark
 from mono_hdr_plugin.core.converters import L2HColorConverter
 from mono_hdr_plugin.core.registry import BENCHMARKS
-from mono_hdr_plugin.methods import MethodConfig, MonoHDR
+from mono_hdr_plugin.methods.base import MethodConfig
+from mono_hdr_plugin.methods.mono import MonoHDR
 
 
 def test_registered_as_raster():
