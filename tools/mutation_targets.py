@@ -28,6 +28,13 @@ METHOD_TESTS = (
     f"{WIRING}::TestWeightsByFiniteDifferences",
     KNOWN_ANSWER,
 )
+TRAIN_STEP_TESTS = (
+    "tests/core/test_train_step.py",
+    f"{WIRING}::TestEveryLossSwitch",
+    f"{WIRING}::TestHdrViewRatioRows",
+    f"{WIRING}::TestWeightsByFiniteDifferences",
+    *QUICK_TRAIN_TESTS,
+)
 TARGETS = {
     "metrics": Target(
         "mono_hdr_plugin.core.metrics",
@@ -74,16 +81,8 @@ TARGETS = {
     "train-step": Target(
         "mono_hdr_plugin.training.trainer",
         "mono_hdr_plugin/training/trainer.py",
-        (
-            "tests/core/test_train_step.py",
-            f"{WIRING}::TestEveryLossSwitch",
-            f"{WIRING}::TestHdrViewRatioRows",
-            f"{WIRING}::TestWeightsByFiniteDifferences",
-            *QUICK_TRAIN_TESTS,
-        ),
+        TRAIN_STEP_TESTS,
         scopes=(
-            "parse_view_ratio",
-            "hdr_supervised_views",
             "Trainer.__init__",
             "Trainer._next_view",
             "Trainer._batch",
@@ -91,6 +90,13 @@ TARGETS = {
             "Trainer.train_step",
             "Trainer.evaluate",
         ),
+    ),
+    # the HDR view ratio the step reads (in the training config since the layer split)
+    "view-ratio": Target(
+        "mono_hdr_plugin.training.config",
+        "mono_hdr_plugin/training/config.py",
+        TRAIN_STEP_TESTS,
+        scopes=("parse_view_ratio", "hdr_supervised_views"),
     ),
     "evaluation": Target(
         "mono_hdr_plugin.training.evaluation", "mono_hdr_plugin/training/evaluation.py", (KNOWN_ANSWER,)
