@@ -30,6 +30,8 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from mutation_targets import TARGETS, Target
+
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT_PACKAGES = (
     "mono_hdr_plugin",
@@ -44,104 +46,6 @@ PROJECT_PACKAGES = (
     "conftest",
 )
 
-
-@dataclass(frozen=True)
-class Target:
-    """A module to mutate, the parts of it that count (qualified-name prefixes; empty: all), and
-    the tests that must catch its mutants (pytest arguments, fastest and sharpest first)."""
-
-    module: str
-    path: str
-    tests: tuple[str, ...]
-    scopes: tuple[str, ...] = ()
-
-
-WIRING = "tests/core/test_loss_wiring.py"
-# test_train.py without its 150-step end-to-end run (the slowest test by far; the others cover the step)
-QUICK_TRAIN_TESTS = ("tests/core/test_train.py", "-k", "not hdr_error_drops")
-KNOWN_ANSWER = "tests/core/test_evaluation_known_answer.py::TestEvaluateKnownAnswer"
-METHOD_TESTS = (
-    "tests/core/test_methods.py",
-    "tests/core/test_method_details.py",
-    f"{WIRING}::test_defaults_are_the_papers",
-    "tests/core/test_registry.py",
-    f"{WIRING}::TestEveryLossSwitch",
-    f"{WIRING}::TestWeightsByFiniteDifferences",
-    KNOWN_ANSWER,
-)
-TARGETS = {
-    "metrics": Target(
-        "mono_hdr_plugin.core.metrics",
-        "mono_hdr_plugin/core/metrics.py",
-        ("tests/core/test_metric_values.py", "tests/core/test_metrics.py", KNOWN_ANSWER),
-    ),
-    "losses": Target(
-        "mono_hdr_plugin.core.losses",
-        "mono_hdr_plugin/core/losses.py",
-        (
-            "tests/core/test_metrics.py::TestLosses",
-            "tests/core/test_method_details.py",
-            f"{WIRING}::TestEveryLossSwitch",
-        ),
-    ),
-    "converters": Target(
-        "mono_hdr_plugin.core.converters",
-        "mono_hdr_plugin/core/converters.py",
-        (
-            "tests/core/test_converters.py",
-            "tests/core/test_method_details.py",
-            "tests/core/test_methods.py",
-            KNOWN_ANSWER,
-        ),
-    ),
-    "methods": Target("mono_hdr_plugin.methods.base", "mono_hdr_plugin/methods/base.py", METHOD_TESTS),
-    "methods-mono": Target("mono_hdr_plugin.methods.mono", "mono_hdr_plugin/methods/mono.py", METHOD_TESTS),
-    "methods-crf": Target(
-        "mono_hdr_plugin.methods.crf_baseline", "mono_hdr_plugin/methods/crf_baseline.py", METHOD_TESTS
-    ),
-    "methods-hdr-nerf": Target("mono_hdr_plugin.methods.hdr_nerf", "mono_hdr_plugin/methods/hdr_nerf.py", METHOD_TESTS),
-    "pipeline": Target(
-        "mono_hdr_plugin.training.pipeline",
-        "mono_hdr_plugin/training/pipeline.py",
-        (
-            "tests/core/test_pipeline.py",
-            "tests/core/test_train_step.py",
-            f"{WIRING}::TestEveryLossSwitch",
-            f"{WIRING}::TestHdrViewRatioRows",
-            KNOWN_ANSWER,
-            *QUICK_TRAIN_TESTS,
-        ),
-    ),
-    "train-step": Target(
-        "mono_hdr_plugin.training.trainer",
-        "mono_hdr_plugin/training/trainer.py",
-        (
-            "tests/core/test_train_step.py",
-            f"{WIRING}::TestEveryLossSwitch",
-            f"{WIRING}::TestHdrViewRatioRows",
-            f"{WIRING}::TestWeightsByFiniteDifferences",
-            *QUICK_TRAIN_TESTS,
-        ),
-        scopes=(
-            "parse_view_ratio",
-            "hdr_supervised_views",
-            "Trainer.__init__",
-            "Trainer._next_view",
-            "Trainer._batch",
-            "Trainer._bad_tensors",
-            "Trainer.train_step",
-            "Trainer.evaluate",
-        ),
-    ),
-    "evaluation": Target(
-        "mono_hdr_plugin.training.evaluation", "mono_hdr_plugin/training/evaluation.py", (KNOWN_ANSWER,)
-    ),
-    "rasterizer": Target(
-        "backbones.gs.rasterizer",
-        "backbones/gs/rasterizer.py",
-        ("tests/gs/test_gs_rasterizer_api.py", "tests/gs/test_gs_rasterizer.py", "tests/gs/test_gs_edge_gradients.py"),
-    ),
-}
 
 # Method calls whose removal leaves a value of the same kind: `x.detach()` -> `x` and so on
 # (not functions of a module: dropping `torch.mean(...)` to `torch` only makes a crash).
@@ -477,7 +381,7 @@ def _combined(earlier: list[Mutant], latest: list[Mutant]) -> list[Mutant]:
     return merged + list(fresh.values())
 
 
-def main() -> int:
+def _parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--targets", nargs="*", choices=sorted(TARGETS), help="default: all")
     parser.add_argument("--ids", nargs="*", type=int, help="run only these mutant ids (of one target)")
@@ -486,8 +390,11 @@ def main() -> int:
     )
     parser.add_argument("--list", action="store_true", help="list the mutants and stop")
     parser.add_argument("--out", type=Path, default=ROOT / "outputs" / "mutants")
-    args = parser.parse_args()
+    return parser.parse_args()
 
+
+def _selected(args: argparse.Namespace) -> tuple[list[Mutant], list[Mutant]]:
+    """(the mutants to run, the earlier run's mutants that are reported with them)."""
     names = args.targets or list(TARGETS)
     mutants = [m for name in names for m in enumerate_mutants(name, TARGETS[name])]
     if args.ids is not None:
@@ -497,35 +404,38 @@ def main() -> int:
         earlier = [Mutant(**m) for m in json.loads(args.rerun.read_text())["mutants"]]
         again = {(m.target, m.id, m.description) for m in earlier if m.status in ("survived", "timeout")}
         mutants = [m for m in mutants if (m.target, m.id, m.description) in again]
-    if args.list:
-        for m in mutants:
-            print(f"{m.target} #{m.id} line {m.line}: {m.description}: {m.source_line}")
-        print(f"{len(mutants)} mutants")
-        return 0
+    return mutants, earlier
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    preload()
-    started = time.perf_counter()
+
+def _baseline_seconds(mutants: list[Mutant], out: Path) -> dict[str, float] | None:
+    """Seconds each target's tests take unmutated; None (after saying why) when they fail without a mutant."""
     baseline: dict[str, float] = {}
     for name in dict.fromkeys(m.target for m in mutants):
-        status, seconds, failed = run_tests(TARGETS[name], None, 3600, args.out / "baseline.log")
+        status, seconds, failed = run_tests(TARGETS[name], None, 3600, out / "baseline.log")
         if status != "survived":
-            print(f"{name}: the tests fail WITHOUT a mutant ({failed}); see {args.out / 'baseline.log'}")
-            return 2
+            print(f"{name}: the tests fail WITHOUT a mutant ({failed}); see {out / 'baseline.log'}")
+            return None
         baseline[name] = seconds
         print(f"{name}: tests pass unmutated in {seconds:.1f} s", flush=True)
+    return baseline
+
+
+def _run_mutants(
+    mutants: list[Mutant], earlier: list[Mutant], baseline: dict[str, float], out: Path, started: float
+) -> None:
+    """Run every mutant, writing results.json after each so an interrupted run keeps what it found."""
     for count, mutant in enumerate(mutants, 1):
         target = TARGETS[mutant.target]
         code = mutated_code(target, mutant.id)
         mutant.status, mutant.seconds, mutant.killed_by = run_tests(
-            target, code, 5 * baseline[mutant.target] + 120, args.out / "mutant.log"
+            target, code, 5 * baseline[mutant.target] + 120, out / "mutant.log"
         )
         print(
             f"[{count}/{len(mutants)}] {mutant.status:8s} {mutant.target} #{mutant.id} line {mutant.line}: "
             f"{mutant.description} ({mutant.seconds:.1f} s)",
             flush=True,
         )
-        (args.out / "results.json").write_text(
+        (out / "results.json").write_text(
             json.dumps(
                 {
                     "baseline_seconds": baseline,
@@ -535,6 +445,24 @@ def main() -> int:
                 indent=1,
             )
         )
+
+
+def main() -> int:
+    args = _parse_args()
+    mutants, earlier = _selected(args)
+    if args.list:
+        for m in mutants:
+            print(f"{m.target} #{m.id} line {m.line}: {m.description}: {m.source_line}")
+        print(f"{len(mutants)} mutants")
+        return 0
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    preload()
+    started = time.perf_counter()
+    baseline = _baseline_seconds(mutants, args.out)
+    if baseline is None:
+        return 2
+    _run_mutants(mutants, earlier, baseline, args.out, started)
     print(f"\n{len(mutants)} mutants in {time.perf_counter() - started:.0f} s\n")
     print(summary(_combined(earlier, mutants)))
     return 0

@@ -122,7 +122,7 @@ BUGS = (
         "reported numbers",
         "Mono-HDR scored at exposures it never trained at",
         "mono_hdr_plugin/training/evaluation.py",
-        "if pipeline.method.renders_any_exposure or v.exposure in train_exposures",
+        "if pipeline.renders_any_exposure or v.exposure in train_exposures",
         "if True",
         EVALUATION_TESTS,
     ),
@@ -186,9 +186,8 @@ BUGS = (
         "loss wiring",
         "H2L-CC left out of the optimiser (the official NeRF code's bug)",
         "mono_hdr_plugin/methods/base.py",
-        'return [{"name": "method", "params": list(self.parameters()), "lr": self.config.converter_lr}]',
-        'return [{"name": "method", "params": [p for n, p in self.named_parameters() if "h2l" not in n], '
-        '"lr": self.config.converter_lr}]',
+        'return [{"name": "method", "params": list(self.parameters()), "lr": lr}]',
+        'return [{"name": "method", "params": [p for n, p in self.named_parameters() if "h2l" not in n], "lr": lr}]',
         WIRING_TESTS,
     ),
     PlantedBug(
