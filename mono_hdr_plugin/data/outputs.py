@@ -298,16 +298,7 @@ def claim_output(
     claimed, outcome = False, "failed"
     try:
         previous = _read_claim(handle)
-        if previous is not None and previous.get("state", "running") == "running":
-            if previous.get("host", host) != host:
-                raise OutputError(
-                    f"--out {folder} is claimed by {_describe(previous)}, another machine, which "
-                    f"cannot be checked from here; if that run has stopped, delete {folder / RUN_FILE}"
-                )
-            console.print(
-                f"note: {folder} was left claimed by {_describe(previous)}, which is no longer running; taking it over",
-                markup=False,
-            )
+        _take_over_stale_claim(folder, previous, host)
         removals = plan_output(folder, command, owned, inputs, overwrite, keep, previous, keep_hint)
         try:
             _write_claim(
@@ -317,22 +308,48 @@ def claim_output(
         except OSError as error:
             raise OutputError(f"--out {folder} cannot be written ({error.strerror}); {os_error_fix(error)}") from error
         claimed = True
-        leftovers = clean_interrupted_writes(folder, owned)
-        if leftovers:
-            names = ", ".join(str(p.relative_to(folder)) for p in leftovers[:5])
-            console.print(
-                f"note: removed {len(leftovers)} temporary file(s) an interrupted write left in {folder}: {names}",
-                markup=False,
-            )
+        _clean_and_note_interrupted_writes(folder, owned)
         yield OutputClaim(folder, removals)
         outcome = "finished"
     finally:
         with contextlib.suppress(OSError, ValueError):
-            only_the_claim = [p.name for p in folder.iterdir()] == [RUN_FILE]
-            if outcome == "failed" and ((created_folder and only_the_claim) or (created_file and not claimed)):
-                (folder / RUN_FILE).unlink()  # still locked: no other claim can be using this file
-                if created_folder:
-                    folder.rmdir()
-            elif claimed:
-                _write_claim(handle, {**(_read_claim(handle) or {}), "state": outcome, "ended": time.time()})
+            _end_claim(folder, handle, outcome, claimed, created_folder, created_file)
         handle.close()  # releases the lock
+
+
+def _take_over_stale_claim(folder: Path, previous: dict | None, host: str) -> None:
+    """Refuse a claim still marked running on another host (not checkable from here); take over, with
+    a note, one left running by a process of this host that holds no lock any more."""
+    if previous is None or previous.get("state", "running") != "running":
+        return
+    if previous.get("host", host) != host:
+        raise OutputError(
+            f"--out {folder} is claimed by {_describe(previous)}, another machine, which "
+            f"cannot be checked from here; if that run has stopped, delete {folder / RUN_FILE}"
+        )
+    console.print(
+        f"note: {folder} was left claimed by {_describe(previous)}, which is no longer running; taking it over",
+        markup=False,
+    )
+
+
+def _clean_and_note_interrupted_writes(folder: Path, owned: tuple[str, ...] | None) -> None:
+    leftovers = clean_interrupted_writes(folder, owned)
+    if leftovers:
+        names = ", ".join(str(p.relative_to(folder)) for p in leftovers[:5])
+        console.print(
+            f"note: removed {len(leftovers)} temporary file(s) an interrupted write left in {folder}: {names}",
+            markup=False,
+        )
+
+
+def _end_claim(folder: Path, handle, outcome: str, claimed: bool, created_folder: bool, created_file: bool) -> None:
+    """A failed command that created the folder and wrote nothing, or was refused before claiming a
+    claim file it created, leaves no trace; otherwise the claim records how the command ended."""
+    only_the_claim = [p.name for p in folder.iterdir()] == [RUN_FILE]
+    if outcome == "failed" and ((created_folder and only_the_claim) or (created_file and not claimed)):
+        (folder / RUN_FILE).unlink()  # still locked: no other claim can be using this file
+        if created_folder:
+            folder.rmdir()
+    elif claimed:
+        _write_claim(handle, {**(_read_claim(handle) or {}), "state": outcome, "ended": time.time()})

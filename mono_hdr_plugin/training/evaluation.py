@@ -67,50 +67,14 @@ def evaluate(
     hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
     # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
     fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
-    rows: list[dict[str, Any]] = []
     with pipeline.evaluating():
-        for view in views:
-            output = (
-                pipeline.render_matching(view.camera, view.image)
-                if view.name in fitted
-                else pipeline.render(view.camera, view.exposure)
-            )
-            ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
-            row = {
-                "view": view.stem,
-                "view_id": view.view_id,
-                "exposure": view.exposure,
-                "ldr_psnr": psnr(ldr, view.image),
-                "ldr_ssim": ssim(ldr.double(), view.image.double()).item(),
-            }
-            if lpips_model is not None:
-                row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
-            if id(view) in hdr_views:
-                assert view.hdr is not None  # hdr_views holds only views with a ground-truth HDR
-                row.update(hdr_metrics(output.hdr, view.hdr))
-                if lpips_model is not None:
-                    row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
-                if render_dir is not None:
-                    save_view_renders(render_dir, view, output)
-            rows.append(row)
-    exposures = sorted({row["exposure"] for row in rows})
-    train_exposures = set(scene.train_exposures)
-    headline = [e for e in exposures if e in train_exposures] or exposures
-    by_exposure = {
-        key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
-        for key in ("ldr_psnr", "ldr_ssim")
-    }
-    metrics: dict[str, Any] = {
-        "backbone": pipeline.backbone_name,
-        "method": pipeline.method_name,
-        "scene": scene.name,
-        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
-        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
-        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
-        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
-        "test_views": len({v.view_id for v in views}),
-        "ldr_exposure_fitted": sum(view.name in fitted for view in views),
-    }
+        rows = [
+            _score_view(pipeline, view, view.name in fitted, id(view) in hdr_views, lpips_model, render_dir)
+            for view in views
+        ]
+    metrics = _summarise_rows(pipeline, scene, rows)
+    metrics["test_views"] = len({v.view_id for v in views})
+    metrics["ldr_exposure_fitted"] = sum(view.name in fitted for view in views)
     for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
         values = [row[key] for row in rows if key in row]
         metrics[key] = _mean(values) if values else None
@@ -118,6 +82,56 @@ def evaluate(
         metrics["lpips_skipped"] = lpips_skipped
     metrics["views"] = rows
     return metrics
+
+
+def _score_view(
+    pipeline: Pipeline, view: View, fit_exposure: bool, score_hdr: bool, lpips_model, render_dir: Path | None
+) -> dict[str, Any]:
+    """One view's own figures: LDR always, HDR (and its renders under `render_dir`) when `score_hdr`."""
+    output = (
+        pipeline.render_matching(view.camera, view.image)
+        if fit_exposure
+        else pipeline.render(view.camera, view.exposure)
+    )
+    ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
+    row = {
+        "view": view.stem,
+        "view_id": view.view_id,
+        "exposure": view.exposure,
+        "ldr_psnr": psnr(ldr, view.image),
+        "ldr_ssim": ssim(ldr.double(), view.image.double()).item(),
+    }
+    if lpips_model is not None:
+        row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
+    if score_hdr:
+        assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
+        row.update(hdr_metrics(output.hdr, view.hdr))
+        if lpips_model is not None:
+            row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
+        if render_dir is not None:
+            save_view_renders(render_dir, view, output)
+    return row
+
+
+def _summarise_rows(pipeline: Pipeline, scene: SceneData, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The run's names and the LDR figures: per exposure the mean of its views, the headline the mean
+    over the training exposures (over every exposure when none of them was evaluated)."""
+    exposures = sorted({row["exposure"] for row in rows})
+    train_exposures = set(scene.train_exposures)
+    headline = [e for e in exposures if e in train_exposures] or exposures
+    by_exposure = {
+        key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
+        for key in ("ldr_psnr", "ldr_ssim")
+    }
+    return {
+        "backbone": pipeline.backbone_name,
+        "method": pipeline.method_name,
+        "scene": scene.name,
+        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
+        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
+        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
+        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
+    }
 
 
 def _mean(values: list[float]) -> float:

@@ -9,18 +9,9 @@ import torch
 
 from mono_hdr_plugin.apps.bench import runs
 from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves
-from mono_hdr_plugin.apps.bench.paper import (
-    BenchPaperConfig,
-    Variant,
-    best_recipes,
-    mean_spread,
-    ordering,
-    orderings,
-    seed_values,
-    table_variants,
-    tuning_trials,
-    write_paper_report,
-)
+from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig, best_recipes, table_variants, tuning_trials
+from mono_hdr_plugin.apps.bench.paper_report import mean_spread, ordering, orderings, seed_values, write_paper_report
+from mono_hdr_plugin.apps.bench.paper_tables import Variant
 from mono_hdr_plugin.apps.bench.runs import (
     ExecutorConfig,
     RowStore,
