@@ -21,6 +21,24 @@ from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 
 
+def _checked_bounds(scene: SceneInfo) -> tuple[Tensor, Tensor]:
+    """The scene's bounds as float 3-vectors; they must be finite with max > min."""
+    bounds_min = torch.as_tensor(scene.bounds_min, dtype=torch.float32).reshape(-1)
+    bounds_max = torch.as_tensor(scene.bounds_max, dtype=torch.float32).reshape(-1)
+    if (
+        bounds_min.shape != (3,)
+        or bounds_max.shape != (3,)
+        or not (
+            torch.isfinite(bounds_min).all() and torch.isfinite(bounds_max).all() and (bounds_max > bounds_min).all()
+        )
+    ):
+        raise ValueError(
+            f"SceneInfo.bounds_min/bounds_max must be finite 3-vectors with max > min, "
+            f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds"
+        )
+    return bounds_min, bounds_max
+
+
 class NerfBackbone(Backbone):
     """Neural radiance field: a grid field made for a CPU (preset cpu) or the official MLP (preset paper).
 
@@ -40,21 +58,7 @@ class NerfBackbone(Backbone):
 
     def __init__(self, config: NerfConfig, scene: SceneInfo):
         super().__init__(config, scene)
-        bounds_min = torch.as_tensor(scene.bounds_min, dtype=torch.float32).reshape(-1)
-        bounds_max = torch.as_tensor(scene.bounds_max, dtype=torch.float32).reshape(-1)
-        if (
-            bounds_min.shape != (3,)
-            or bounds_max.shape != (3,)
-            or not (
-                torch.isfinite(bounds_min).all()
-                and torch.isfinite(bounds_max).all()
-                and (bounds_max > bounds_min).all()
-            )
-        ):
-            raise ValueError(
-                f"SceneInfo.bounds_min/bounds_max must be finite 3-vectors with max > min, "
-                f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds"
-            )
+        bounds_min, bounds_max = _checked_bounds(scene)
         if len(config.background) != 3:
             raise ValueError(f"NerfConfig.background must be 3 numbers (RGB), got {config.background}")
         if config.render_chunk < 1:
@@ -71,36 +75,44 @@ class NerfBackbone(Backbone):
         # The converters learn at the field's MLP rate, as the official NeRF recipe trains both at 5e-4.
         self.converter_lr = field.lr if isinstance(field, MlpFieldConfig) else field.mlp_lr
         if isinstance(field, MlpFieldConfig):
-            if field.coarse_samples < 3 or field.fine_samples < 1:
-                raise ValueError(
-                    "the paper field needs coarse_samples >= 3 and fine_samples >= 1, "
-                    f"got {field.coarse_samples} and {field.fine_samples}"
-                )
-            self.coarse_field = MlpRadianceField(field)
-            self.fine_field = MlpRadianceField(field)
+            self._build_mlp_fields(field)
         elif isinstance(field, GridFieldConfig):
-            if field.max_samples_per_ray < 1 or not field.min_step > 0:
-                raise ValueError(
-                    "the grid field needs max_samples_per_ray >= 1 and min_step > 0, got "
-                    f"{field.max_samples_per_ray} and {field.min_step}"
-                )
-            if not 1 <= field.rays_per_step <= field.max_rays_per_step or field.samples_per_step < 1:
-                raise ValueError(
-                    "the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
-                    f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}"
-                )
-            load_extension()  # built (or loaded) here, so a first build is never counted as training time
-            self.grid_field = GridRadianceField(field)
-            self.occupancy = OccupancyGrid(field.occupancy_resolution)
-            self.occupancy.mark_seen(scene.train_cameras, self.to_world)
-            # The adaptive ray batch is state: a resumed run continues with the same batch.
-            self.register_buffer("rays_per_step", torch.tensor(field.rays_per_step))
-            self.register_load_state_dict_post_hook(lambda module, keys: module._sync_pixel_batch())
-            self._last_batch: tuple[int, int] | None = None
+            self._build_grid_field(field, scene)
         else:
             raise ValueError(
                 f"NerfConfig.field must be a GridFieldConfig or MlpFieldConfig, got {type(field).__name__}"
             )
+
+    def _build_mlp_fields(self, field: MlpFieldConfig) -> None:
+        """The official recipe: a coarse and a fine MLP field."""
+        if field.coarse_samples < 3 or field.fine_samples < 1:
+            raise ValueError(
+                "the paper field needs coarse_samples >= 3 and fine_samples >= 1, "
+                f"got {field.coarse_samples} and {field.fine_samples}"
+            )
+        self.coarse_field = MlpRadianceField(field)
+        self.fine_field = MlpRadianceField(field)
+
+    def _build_grid_field(self, field: GridFieldConfig, scene: SceneInfo) -> None:
+        """The CPU recipe: a hash-grid field, its occupancy grid, and the adaptive ray batch."""
+        if field.max_samples_per_ray < 1 or not field.min_step > 0:
+            raise ValueError(
+                "the grid field needs max_samples_per_ray >= 1 and min_step > 0, got "
+                f"{field.max_samples_per_ray} and {field.min_step}"
+            )
+        if not 1 <= field.rays_per_step <= field.max_rays_per_step or field.samples_per_step < 1:
+            raise ValueError(
+                "the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
+                f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}"
+            )
+        load_extension()  # built (or loaded) here, so a first build is never counted as training time
+        self.grid_field = GridRadianceField(field)
+        self.occupancy = OccupancyGrid(field.occupancy_resolution)
+        self.occupancy.mark_seen(scene.train_cameras, self.to_world)
+        # The adaptive ray batch is state: a resumed run continues with the same batch.
+        self.register_buffer("rays_per_step", torch.tensor(field.rays_per_step))
+        self.register_load_state_dict_post_hook(lambda module, keys: module._sync_pixel_batch())
+        self._last_batch: tuple[int, int] | None = None
 
     @classmethod
     def presets(cls) -> dict[str, NerfConfig]:

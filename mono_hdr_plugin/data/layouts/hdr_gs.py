@@ -238,11 +238,8 @@ def _test_names(folder: Path, names: list[str]) -> set[str] | None:
     return set(test)
 
 
-def read(folder: Path) -> CapturedScene:
-    """Every photo of an HDR-GS scene, with the COLMAP points for initialisation."""
-    model = _read_model(folder)
-    images = _image_folder(folder)
-    exposures = _ExposureSource(folder)
+def _sorted_images(model, folder: Path) -> list:
+    """The model's (image id, image) entries in numeric name order, each name checked as JSON-safe text."""
     try:
         entries = sorted(model.images.items(), key=lambda item: natural_key(item[1].name))
     except UnicodeDecodeError as error:
@@ -254,26 +251,29 @@ def read(folder: Path) -> CapturedScene:
         json_name(image.name, f"{folder / MODEL_FOLDER}: image name")
     if not entries:
         raise DatasetError(f"{folder / MODEL_FOLDER}: the COLMAP model has no images; re-run COLMAP")
-    test_names = _test_names(folder, [image.name for _, image in entries])
-    views, sizes = [], {}
-    for view_id, (image_id, image) in enumerate(entries):
-        shots = _view_shots(images, image.name, image_id, exposures)
-        sizes.update({images / s.name: image_size(images / s.name) for s in shots})
-        camera = _camera(model.cameras[image.camera_id], _cam_from_world(image), folder, image.name)
-        token = Path(image.name).stem.split("_")[0]
-        exr = folder / "exr" / f"{token}.exr"
-        test = view_id % 2 == 1 if test_names is None else image.name in test_names
-        views.append(
-            CapturedView(
-                view_id=view_id,
-                camera=camera,
-                split="test" if test else "train",
-                shots=shots,
-                name=token,
-                hdr=ImageFile(exr, read_exr) if exr.is_file() else None,
-            )
-        )
-    width, height = check_one_size(sizes, images)
+    return entries
+
+
+def _captured_view(
+    view_id: int, image, shots: list[Shot], model, folder: Path, test_names: set[str] | None
+) -> CapturedView:
+    """One COLMAP image entry as a view: its camera, split, photos and HDR ground truth (exr/<view>.exr)."""
+    camera = _camera(model.cameras[image.camera_id], _cam_from_world(image), folder, image.name)
+    token = Path(image.name).stem.split("_")[0]
+    exr = folder / "exr" / f"{token}.exr"
+    test = view_id % 2 == 1 if test_names is None else image.name in test_names
+    return CapturedView(
+        view_id=view_id,
+        camera=camera,
+        split="test" if test else "train",
+        shots=shots,
+        name=token,
+        hdr=ImageFile(exr, read_exr) if exr.is_file() else None,
+    )
+
+
+def _check_camera_sizes(views: list[CapturedView], width: int, height: int, folder: Path) -> None:
+    """Every COLMAP camera must have the size of the photos."""
     for view in views:
         if (view.camera.width, view.camera.height) != (width, height):
             raise DatasetError(
@@ -281,6 +281,22 @@ def read(folder: Path) -> CapturedScene:
                 f"{view.camera.width}x{view.camera.height} but the photos are {width}x{height}; "
                 "re-run COLMAP on these images or resize them"
             )
+
+
+def read(folder: Path) -> CapturedScene:
+    """Every photo of an HDR-GS scene, with the COLMAP points for initialisation."""
+    model = _read_model(folder)
+    images = _image_folder(folder)
+    exposures = _ExposureSource(folder)
+    entries = _sorted_images(model, folder)
+    test_names = _test_names(folder, [image.name for _, image in entries])
+    views, sizes = [], {}
+    for view_id, (image_id, image) in enumerate(entries):
+        shots = _view_shots(images, image.name, image_id, exposures)
+        sizes.update({images / s.name: image_size(images / s.name) for s in shots})
+        views.append(_captured_view(view_id, image, shots, model, folder, test_names))
+    width, height = check_one_size(sizes, images)
+    _check_camera_sizes(views, width, height, folder)
     points, colours = _points(model, folder / MODEL_FOLDER)
     bounds = (
         bounds_from_points(points.numpy()) if points is not None else bounds_from_cameras([v.camera for v in views])

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import atomic_path, read_image, write_png
@@ -71,14 +72,8 @@ def _load_rows(folder: Path, names: list[str]) -> np.ndarray:
     return check_finite(rows, path, "a pose, bound or exposure")
 
 
-def read(folder: Path) -> CapturedScene:
-    """Every photo of an HDR-NeRF real scene (no HDR ground truth)."""
-    images = folder / IMAGE_FOLDER
-    if not images.is_dir():
-        raise missing(images, f"the HDR-NeRF real layout keeps its photos in {IMAGE_FOLDER}/")
-    # Rows pair with the string-sorted names, as the official loader's sorted(os.listdir).
-    names = sorted(p.name for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    rows = _load_rows(folder, names)
+def _group_by_view(images: Path, names: list[str], rows: np.ndarray) -> dict[str, list[tuple[str, np.ndarray]]]:
+    """The (name, row) pairs of each view token, from names <view>_<e>.<ext>."""
     groups: dict[str, list[tuple[str, np.ndarray]]] = {}
     for name, row in zip(names, rows):
         parsed = split_view_exposure(name)
@@ -87,44 +82,65 @@ def read(folder: Path) -> CapturedScene:
                 f"{images / name}: expected a name <view>_<exposure index>.<ext> like 000_0.jpg; rename the file"
             )
         groups.setdefault(parsed[0], []).append((name, row))
+    return groups
+
+
+def _view_camera(folder: Path, name: str, row: np.ndarray, width: int, height: int) -> Camera:
+    """The camera of a view's first row: LLFF pose, hwf focal length rescaled to the photos, near and far."""
+    pose = row[:15].reshape(3, 5)
+    if not (pose[:, 4] > 0).all():
+        raise DatasetError(
+            f"{folder / POSES_FILE} row of {name}: image height, width and focal length "
+            f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
+            "regenerate the file"
+        )
+    focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
+    return camera_from(
+        f"{folder / POSES_FILE} row of {name}",
+        c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(),
+        fx=focal,
+        fy=focal,
+        cx=width / 2,
+        cy=height / 2,
+        width=width,
+        height=height,
+        near=float(row[15]),
+        far=float(row[16]),
+    )
+
+
+def _view_shots(folder: Path, group: list[tuple[str, np.ndarray]]) -> list[Shot]:
+    """A view's photos with the exposures of their rows, shortest exposure first."""
+    shots = [
+        Shot(
+            check_exposure(row[17], f"{folder / POSES_FILE} row of {name}"),
+            functools.partial(read_image, folder / IMAGE_FOLDER / name),
+            name,
+        )
+        for name, row in group
+    ]
+    return sorted(shots, key=lambda s: s.exposure)
+
+
+def read(folder: Path) -> CapturedScene:
+    """Every photo of an HDR-NeRF real scene (no HDR ground truth)."""
+    images = folder / IMAGE_FOLDER
+    if not images.is_dir():
+        raise missing(images, f"the HDR-NeRF real layout keeps its photos in {IMAGE_FOLDER}/")
+    # Rows pair with the string-sorted names, as the official loader's sorted(os.listdir).
+    names = sorted(p.name for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    rows = _load_rows(folder, names)
+    groups = _group_by_view(images, names, rows)
     width, height = check_one_size({images / n: image_size(images / n) for n in names}, images)
     views = []
     for view_id, token in enumerate(sorted(groups, key=natural_key)):
-        (first_name, first_row), *_ = groups[token]
-        pose = first_row[:15].reshape(3, 5)
-        if not (pose[:, 4] > 0).all():
-            raise DatasetError(
-                f"{folder / POSES_FILE} row of {first_name}: image height, width and focal length "
-                f"(columns 4, 9 and 14) must be positive, got {', '.join(f'{v:g}' for v in pose[:, 4])}; "
-                "regenerate the file"
-            )
-        focal = pose[2, 4] * width / pose[1, 4]  # hwf is for the original size; photos may be smaller
-        camera = camera_from(
-            f"{folder / POSES_FILE} row of {first_name}",
-            c2w=torch.from_numpy(llff_to_opencv(pose[:, :4])).float(),
-            fx=focal,
-            fy=focal,
-            cx=width / 2,
-            cy=height / 2,
-            width=width,
-            height=height,
-            near=float(first_row[15]),
-            far=float(first_row[16]),
-        )
-        shots = [
-            Shot(
-                check_exposure(row[17], f"{folder / POSES_FILE} row of {name}"),
-                functools.partial(read_image, images / name),
-                name,
-            )
-            for name, row in groups[token]
-        ]
+        first_name, first_row = groups[token][0]
         views.append(
             CapturedView(
                 view_id=view_id,
-                camera=camera,
+                camera=_view_camera(folder, first_name, first_row, width, height),
                 split="train" if view_id % 2 == 0 else "test",
-                shots=sorted(shots, key=lambda s: s.exposure),
+                shots=_view_shots(folder, groups[token]),
                 name=token,
             )
         )
