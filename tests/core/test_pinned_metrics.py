@@ -63,4 +63,8 @@ def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
         seed=3,
     )
     metrics = Trainer(config, backbone, scene).train()
-    assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=1e-6)
+    # The C++/OpenMP kernels of gs and nerf sum in an order that can differ between machines and with the
+    # machine's load, even on MKL's AVX2 path (tests/conftest.py): on 2026-12-03, with other work running,
+    # gs/mono ended 9.2e-5 and nerf/hdr-gs 2.6e-6 of a PSNR from their pins. The voxel grid is plain torch.
+    tolerance = 1e-6 if backbone == "voxel-grid" else 2e-4
+    assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=tolerance)
