@@ -244,7 +244,8 @@ class TestBracketsAreOneViewpoint:
         staged, photos = staged_photos(tmp_path, [wide[:, :64], 1.04 * wide[:, 3:67]], [None, None])
         plans, notes = plan_brackets([[0, 1]], photos, staged, "srgb", Console(quiet=True))
         assert plans == [] and notes == [
-            "p0.jpg: do not line up with the other photos of their bracket (p1.jpg) and are left out of its merge"
+            "p0.jpg, p1.jpg: taken as one viewpoint, but their pixels do not line up in place (another viewpoint, "
+            "or something moved): not merged"
         ]
         assert bracket_response(plans, staged, "srgb", Console(quiet=True)) == (None, None, [])
 

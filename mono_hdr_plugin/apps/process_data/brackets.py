@@ -160,7 +160,10 @@ def plan_bracket(
         else []
     )
     if len(kept) < 2:
-        return None, notes
+        return None, [
+            f"{', '.join(names)}: taken as one viewpoint, but their pixels do not line up in place (another "
+            "viewpoint, or something moved): not merged"
+        ]
     if known:
         exposures = [times[k] for k in kept]
     else:
