@@ -13,13 +13,16 @@ from mono_hdr_plugin.data.photos import brackets
 from mono_hdr_plugin.data.photos.brackets import (
     BracketCandidate,
     BracketTolerances,
+    UnreliableResponse,
     aligned_members,
+    alignment_view,
     brightness_order,
     detect_brackets,
     dynamic_range_stops,
     estimate_relative_exposures,
     merge_bracket,
     recover_response,
+    response_problem,
     response_sample,
 )
 
@@ -241,6 +244,41 @@ class TestResponse:
         assert mulaw_psnr(merge_bracket(photos, exposures, response, ["a"] * 5), scene) > 35
 
 
+class TestResponseRefusals:
+    srgb_truth = colour.cctf_decoding(np.linspace(0, 1, 256), function="sRGB")
+
+    def bracket(self, exposures, stops_range=14.0):
+        scene = linear_scene(96, 128, stops_range=stops_range)
+        srgb = lambda x: colour.cctf_encoding(x, function="sRGB")  # noqa: E731 - the camera's response, inline
+        return [([response_sample(photograph(2 * scene / scene.max(), t, srgb)) for t in exposures], exposures)]
+
+    def test_three_exposures_a_quarter_to_four_recover_srgb(self):
+        response = recover_response(self.bracket([0.25, 1.0, 4.0]))
+        error = np.abs(np.log(response[20:250] / self.srgb_truth[20:250, None]))
+        assert error.max() < 0.1
+
+    def test_a_pair_1_04x_apart_is_refused(self):
+        with pytest.raises(UnreliableResponse, match=r"^the widest bracket spans 0.06 stops, the response needs 1"):
+            recover_response(self.bracket([1.0, 1.04]))
+
+    def test_a_scene_too_narrow_to_cover_the_codes_is_refused(self):
+        with pytest.raises(UnreliableResponse, match=r"cover 70% of the range, the response needs 95%"):
+            recover_response(self.bracket([1.0, 2.0], stops_range=4.0))
+
+    @pytest.mark.parametrize(
+        "change,message",
+        [
+            (lambda curve: 0.9 * curve + 0.1, "maps black to 0.10 of white"),
+            (lambda curve: np.minimum(1.0, curve * np.array([1.0, 1.0, 2.8])), "differ by up to 2.8x"),
+            # code 128 halved: 1 - 0.5 * (128 / 127) ** 2.2 below code 127
+            (lambda curve: np.where(np.arange(256)[:, None] == 128, 0.5 * curve, curve), "falls by 49%"),
+        ],
+    )
+    def test_implausible_curves_are_named(self, change, message):
+        assert response_problem(gamma_response()) is None
+        assert message in response_problem(change(gamma_response()))
+
+
 class TestExposureRatios:
     def test_recovers_known_ratios(self):
         scene = linear_scene(stops_range=8.0)
@@ -255,11 +293,17 @@ class TestExposureRatios:
             estimate_relative_exposures([black, white], None, ["dark.jpg", "bright.jpg"])
 
 
+def textured_scene(height: int = 48, width: int = 64, seed: int = 0) -> np.ndarray:
+    """linear_scene over 8 stops with pixel-sized texture (reflectance 1-1.5): something to align on."""
+    texture = 1.0 + 0.5 * np.random.default_rng(seed + 1).random((height, width, 1))
+    return linear_scene(height, width, stops_range=8.0, seed=seed) * texture
+
+
 class TestAlignment:
     def test_a_photo_of_something_else_is_left_out(self):
         exposures = [1.0, 4.0, 16.0, 64.0]
-        photos = [photograph(linear_scene(stops_range=8.0), t) for t in exposures]
-        photos[3] = photograph(linear_scene(stops_range=8.0)[::-1, ::-1].copy(), exposures[3])  # turned around
+        photos = [photograph(textured_scene(), t) for t in exposures]
+        photos[3] = photograph(textured_scene()[::-1, ::-1].copy(), exposures[3])  # turned around
         order = brightness_order(photos)
         assert order == [0, 1, 2, 3]
         assert aligned_members(photos, order, 1, gamma_response()) == [0, 1, 2]
@@ -287,5 +331,23 @@ class TestAlignment:
 
     def test_aligned_photos_are_all_kept(self):
         exposures = [1.0, 4.0, 16.0]
-        photos = [photograph(linear_scene(stops_range=8.0), t) for t in exposures]
+        photos = [photograph(textured_scene(), t) for t in exposures]
         assert aligned_members(photos, [0, 1, 2], 1, gamma_response()) == [0, 1, 2]
+
+    @pytest.mark.parametrize("shift", [1, 2, 3, 6, 12])
+    def test_a_neighbouring_viewpoint_is_left_out(self, shift):
+        # Two crops of one wider scene `shift` pixels apart: what a step sideways looks like.
+        wide = textured_scene(48, 64 + shift)
+        darker, brighter = photograph(wide[:, :64], 1.0), photograph(wide[:, shift:], 4.0)
+        assert aligned_members([darker, brighter], [0, 1], 0, gamma_response()) == [0]
+
+    def test_a_featureless_view_is_no_evidence_of_one_viewpoint(self):
+        # A smooth exponential ramp looks the same shifted, up to a gain: nothing says the photos align.
+        photos = [photograph(linear_scene(stops_range=8.0), t) for t in (1.0, 4.0)]
+        assert aligned_members(photos, [0, 1], 0, gamma_response()) == [0]
+
+    def test_alignment_view_is_block_means(self):
+        image = np.arange(2 * 300 * 200 * 3, dtype=np.float64).reshape(2 * 300, 200, 3)
+        view = alignment_view(image)  # 600 px long side: blocks of ceil(600 / 128) = 5
+        assert view.shape == (120, 40, 3)
+        np.testing.assert_allclose(view[0, 0], image[:5, :5].reshape(-1, 3).mean(0))

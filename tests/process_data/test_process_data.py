@@ -453,7 +453,7 @@ class TestExposureWarnings:
         for photo in photos:
             photo.exposure, photo.exposure_source = None, "unknown"
         notes = exposure_warnings(photos, {"iso": None, "f_number": None})
-        assert len(notes) == 1 and "learns them" in notes[0]
+        assert len(notes) == 1 and "treating every photo as one unknown exposure" in notes[0]
 
     def test_moderate_range_is_quiet(self):
         assert exposure_warnings(self.photos(1 / 60, 1 / 15), {"iso": None, "f_number": None}) == []

@@ -15,9 +15,15 @@ import pytest
 from rich.console import Console
 
 from mono_hdr_plugin.apps.cli import main as cli_main
-from mono_hdr_plugin.apps.process_data.brackets import mark_views, merge_plan, plan_brackets, response_curve
+from mono_hdr_plugin.apps.process_data.brackets import (
+    bracket_response,
+    mark_views,
+    merge_plan,
+    plan_brackets,
+    response_curve,
+)
 from mono_hdr_plugin.apps.process_data.config import ProcessDataConfig, check_config
-from mono_hdr_plugin.apps.process_data.exposures import photo_records
+from mono_hdr_plugin.apps.process_data.exposures import exposure_warnings, photo_records
 from mono_hdr_plugin.apps.process_data.layout import choose_test_views, install, write_metadata
 from mono_hdr_plugin.apps.process_data.photos import StagedPhoto, find_inputs, stage_photos
 from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord
@@ -29,7 +35,7 @@ from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.data.photos.brackets import BracketTolerances
 from mono_hdr_plugin.data.photos.exif import PhotoExif
-from mono_hdr_plugin.data.photos.raw import encode
+from mono_hdr_plugin.data.photos.raw import decode, encode
 
 
 def jpegs(folder: Path, count: int, size=(32, 24)) -> list[Path]:
@@ -215,6 +221,69 @@ class TestBracketsStage:
         for photo in photos[:3]:
             photo.registered = False
         assert plan_brackets([[0, 1, 2], [3]], photos, staged, "srgb", Console(quiet=True)) == ([], [])
+
+
+def staged_photos(folder: Path, images: list[np.ndarray], exposures: list[float | None]):
+    """Each linear image through the sRGB curve as a PNG: staged photos and placed records."""
+    staged, photos = [], []
+    for i, (image, exposure) in enumerate(zip(images, exposures)):
+        pixels = encode(np.clip(image, 0, 1), "srgb")
+        write_png(folder / f"p{i}.png", pixels)
+        brightness = float(np.round(pixels * 255).mean() / 255)
+        staged.append(StagedPhoto(folder / f"p{i}.png", f"{i:03d}_0.png", PhotoExif(), False, brightness))
+        photos.append(record(i, exposure, registered=True))
+    return staged, photos
+
+
+class TestBracketsAreOneViewpoint:
+    """Issue 33: neighbouring viewpoints, one exposure each and no exposure times, are never merged
+    and no response is fitted from them; a real bracket still is."""
+
+    def test_single_exposures_of_neighbouring_viewpoints_are_not_merged(self, tmp_path):
+        wide = textured_radiance(48, 70)  # a step sideways: the same scene 3 px further on
+        staged, photos = staged_photos(tmp_path, [wide[:, :64], 1.04 * wide[:, 3:67]], [None, None])
+        plans, notes = plan_brackets([[0, 1]], photos, staged, "srgb", Console(quiet=True))
+        assert plans == [] and notes == [
+            "p0.jpg, p1.jpg: taken as one viewpoint, but their pixels do not line up in place (another viewpoint, "
+            "or something moved): not merged"
+        ]
+        assert bracket_response(plans, staged, "srgb", Console(quiet=True)) == (None, None, [])
+
+    def test_one_viewpoint_1_04x_apart_is_no_bracket(self, tmp_path):
+        radiance = textured_radiance()
+        staged, photos = staged_photos(tmp_path, [radiance, 1.04 * radiance], [None, None])
+        plans, notes = plan_brackets([[0, 1]], photos, staged, "srgb", Console(quiet=True))
+        assert plans == [] and len(notes) == 1
+        assert notes[0].startswith("p0.jpg, p1.jpg: one viewpoint, but their exposures span only 0.06 stops")
+
+    def test_a_real_bracket_is_merged_and_its_response_recovered(self, tmp_path):
+        scene = textured_radiance(96, 128) ** 2.5 * 40  # about 11 stops: dark and bright parts
+        staged, photos = staged_photos(tmp_path, [scene * t for t in (0.25, 1.0, 4.0)], [None] * 3)
+        plans, notes = plan_brackets([[0, 1, 2]], photos, staged, "srgb", Console(quiet=True))
+        assert notes == [] and [plan.members for plan in plans] == [[0, 1, 2]] and plans[0].estimated
+        np.testing.assert_allclose(np.array(plans[0].exposures) / plans[0].exposures[0], [1, 4, 16], rtol=0.03)
+        response, source, response_notes = bracket_response(plans, staged, "srgb", Console(quiet=True))
+        assert source.startswith("recovered from 1 bracket set(s)") and response_notes == []
+        srgb = decode(np.linspace(0, 1, 256), "srgb")
+        assert np.abs(np.log(response[20:250] / srgb[20:250, None])).max() < 0.25
+
+    def test_a_response_the_bracket_cannot_carry_falls_back_to_srgb(self, tmp_path):
+        radiance = textured_radiance()  # about 4 stops: too few code values for a curve
+        staged, photos = staged_photos(tmp_path, [radiance, 2 * radiance], [1.0, 2.0])
+        plans, _ = plan_brackets([[0, 1]], photos, staged, "srgb", Console(quiet=True))
+        response, source, notes = bracket_response(plans, staged, "srgb", Console(quiet=True))
+        np.testing.assert_array_equal(response, np.stack([decode(np.linspace(0, 1, 256), "srgb")] * 3, -1))
+        assert source.startswith("srgb (default")
+        assert len(notes) == 1 and notes[0].startswith("camera response not fitted (code values well exposed")
+        assert "shoot brackets of 3 or more exposures" in notes[0]
+
+    def test_the_assumption_is_said(self):
+        photos = [record(i, None, registered=True, view=True) for i in range(3)]
+        assert exposure_warnings(photos, {"iso": None, "f_number": None}) == [
+            "no exposure times (EXIF, --exposure-csv, --exposure): treating every photo as one unknown exposure "
+            "that training learns per view (--learn-exposure), and merging only photos of one viewpoint that line "
+            "up, their ratios measured from the pixels; pass --exposure SECONDS or --exposure-csv FILE to give them"
+        ]
 
 
 class TestLayoutStage:

@@ -13,15 +13,18 @@ from mono_hdr_plugin.apps.process_data.photos import StagedPhoto, photo_pixels
 from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.photos.brackets import (
+    MIN_BRACKET_STOPS,
     BracketCandidate,
+    UnreliableResponse,
     aligned_members,
+    alignment_view,
     brightness_order,
     detect_brackets,
     estimate_relative_exposures,
     merge_bracket,
     recover_response,
     response_sample,
-    same_exposure,
+    spread_stops,
 )
 from mono_hdr_plugin.data.photos.raw import RawResponse, decode
 
@@ -125,8 +128,9 @@ def plan_brackets(
 def plan_bracket(
     members: list[int], photos: list[PhotoRecord], staged: list[StagedPhoto], raw_response: RawResponse, typical: float
 ) -> tuple[BracketPlan | None, list[str]]:
-    """The plan of one set with a placed member (None when what is left has one exposure), and a note
-    naming the members that do not line up. `typical`: the brightness the set's view should have."""
+    """The plan of one set with a placed member (None when what is left is no bracket: one photo, or
+    exposures within MIN_BRACKET_STOPS), and notes naming the members left out.
+    `typical`: the brightness the set's view should have."""
     placed = [k for k, i in enumerate(members) if photos[i].registered]
     names = [photos[i].source for i in members]
     if len({staged[i].raw for i in members}) > 1:
@@ -135,33 +139,41 @@ def plan_bracket(
             "bracket in one format, or pass --no-brackets"
         )
     response = None if staged[members[0]].raw else response_curve("srgb")
-    samples = []
+    samples, views = [], []
     for i in members:
         encoded, linear = photo_pixels(staged[i], raw_response)
         samples.append(response_sample(encoded if linear is None else linear))
+        views.append(alignment_view(encoded if linear is None else linear))
     known = photos[members[0]].exposure is not None
     times = [time for time in (photos[i].exposure for i in members) if time is not None]
     assert not known or len(times) == len(members)  # assign_exposures gives all photos a time or none
     order = sorted(range(len(members)), key=lambda k: times[k]) if known else brightness_order(samples)
     start = min(placed, key=lambda k: abs(order.index(k) - len(order) // 2))
-    kept = aligned_members(samples, order, start, response)
+    kept = aligned_members(views, order, start, response)
     dropped = [names[k] for k in range(len(members)) if k not in kept]
     notes = (
         [
-            (
-                f"{', '.join(dropped)}: do not line up with the other photos of their bracket "
-                f"({', '.join(names[k] for k in kept)}) and are left out of its merge"
-            )
+            f"{', '.join(dropped)}: do not line up with the other photos of their bracket "
+            f"({', '.join(names[k] for k in kept)}) and are left out of its merge"
         ]
         if dropped
         else []
     )
+    if len(kept) < 2:
+        return None, [
+            f"{', '.join(names)}: taken as one viewpoint, but their pixels do not line up in place (another "
+            "viewpoint, or something moved): not merged"
+        ]
     if known:
         exposures = [times[k] for k in kept]
     else:
         exposures = estimate_relative_exposures([samples[k] for k in kept], response, [names[k] for k in kept])
-    if len(kept) < 2 or all(same_exposure(e, exposures[0]) for e in exposures):
-        return None, notes  # one viewpoint photographed several times at one exposure: single views
+    if spread_stops(exposures) < MIN_BRACKET_STOPS:
+        kept_names = ", ".join(names[k] for k in kept)
+        return None, notes + [
+            f"{kept_names}: one viewpoint, but their exposures span only {spread_stops(exposures):.2f} stops "
+            f"(a bracket needs {MIN_BRACKET_STOPS:.2f}): kept as single photos, not merged"
+        ]
     view = min((k for k in kept if k in placed), key=lambda k: abs(staged[members[k]].brightness - typical))
     return BracketPlan(
         members=[members[k] for k in kept], exposures=exposures, estimated=not known, view=members[view]
@@ -170,18 +182,27 @@ def plan_bracket(
 
 def bracket_response(
     plans: list[BracketPlan], staged: list[StagedPhoto], raw_response: RawResponse, console: Console
-) -> tuple[np.ndarray | None, str | None]:
-    """The camera response [256, 3] of the JPEG brackets (Debevec), or of the RAW photos' chosen curve."""
+) -> tuple[np.ndarray | None, str | None, list[str]]:
+    """The camera response [256, 3] of the JPEG brackets (Debevec), or of the RAW photos' chosen
+    curve; what it is; a note when the brackets could not carry a response and sRGB was used."""
     coded = [plan for plan in plans if not staged[plan.members[0]].raw]
     if coded:
         samples = []
         for plan in track(coded, description="recovering the camera response", console=console):
             images = [response_sample(photo_pixels(staged[i], raw_response)[0]) for i in plan.members]
             samples.append((images, plan.exposures))
-        return recover_response(samples), f"recovered from {len(coded)} bracket set(s) (Debevec & Malik 1997)"
+        try:
+            return recover_response(samples), f"recovered from {len(coded)} bracket set(s) (Debevec & Malik 1997)", []
+        except UnreliableResponse as reason:
+            note = (
+                f"camera response not fitted ({reason}): the merges and training use the sRGB curve; for a "
+                "fitted one shoot brackets of 3 or more exposures 1-3 stops apart of a view with dark and "
+                "bright parts"
+            )
+            return response_curve("srgb"), "srgb (default: the brackets could not carry a fitted response)", [note]
     if any(stage.raw for stage in staged):
-        return response_curve(raw_response), f"{raw_response} (RAW photos)"
-    return None, None
+        return response_curve(raw_response), f"{raw_response} (RAW photos)", []
+    return None, None, []
 
 
 def mark_views(photos: list[PhotoRecord], plans: list[BracketPlan]) -> list[HdrView]:

@@ -157,8 +157,9 @@ def exposure_warnings(photos: list[PhotoRecord], reference: dict) -> list[str]:
     exposures = [photo.exposure for photo in photos if photo.view and photo.exposure is not None]
     if not exposures:
         return [
-            "no photo has an exposure time (EXIF, --exposure-csv, --exposure): they are written as unknown "
-            "and training learns them (--learn-exposure is on for this dataset)"
+            "no exposure times (EXIF, --exposure-csv, --exposure): treating every photo as one unknown exposure "
+            "that training learns per view (--learn-exposure), and merging only photos of one viewpoint that line "
+            "up, their ratios measured from the pixels; pass --exposure SECONDS or --exposure-csv FILE to give them"
         ]
     notes = []
     low, high = min(exposures), max(exposures)

@@ -12,7 +12,9 @@ Finding them. Photos are taken in file order, and two neighbours show one viewpo
   brackets).
 A run of one viewpoint is then cut wherever an exposure repeats, so two brackets shot at one
 place stay two sets. Before merging, `aligned_members` checks the pixels: a member whose
-linearised pixels are not a constant multiple of its neighbour's shows something else and is left out.
+linearised pixels are not a constant multiple of its neighbour's, in place, shows something else
+(another viewpoint, something moved) and is left out. A set whose exposures span less than
+MIN_BRACKET_STOPS is no bracket.
 
 Merging them is colour-hdri's (colour-science): Debevec & Malik (1997) recover the camera
 response from the sets' intensity histograms (Grossberg & Nayar 2003 sampling, so small shifts
@@ -44,6 +46,38 @@ ALIGNED_LOG_SPREAD = 0.25
 """Neighbours in a bracket whose per-pixel log exposure ratios spread (median absolute deviation)
 more than this do not show one view (the spreads it was chosen from: docs/own_photos.md,
 "How the bracket thresholds were chosen")."""
+ALIGN_SIZE = 128
+"""Alignment is judged on block means at most this many pixels on the long side: block means
+average sensor noise away, and one pixel there (about 30 px of a 4000 px photo) is the blur a
+merge of slightly shifted photos would show."""
+ALIGN_FAR = 4
+"""Shift, in pixels of the block means, that shows what the same photos look like misaligned."""
+ALIGN_NEAR_TOLERANCE = 1.1
+"""In place, two photos of one view agree at least about as well as shifted by one pixel (0.6-1.0
+times the spread for brackets; 1.2-1.6 for a copy shifted by 1-2 px: docs/own_photos.md)."""
+ALIGN_FAR_FRACTION = 0.45
+"""In place, two photos of one view agree much better than shifted by ALIGN_FAR pixels (0.1-0.4
+times for brackets, 0.5-0.7 for viewpoints 1-2 degrees apart, about 1 for unrelated photos)."""
+MIN_BRACKET_STOPS = 2 / 3
+"""A set whose exposures span less than 2/3 stop is no bracket but one exposure shot again: it
+would add at most 2/3 stop to the merge's range, auto-exposure moves more than that between
+single photos, and a ratio that small measured from the pixels is within what JPEG tone mapping
+and vignetting change between two shots (a neighbouring viewpoint measured 1.04x: issue 33)."""
+MIN_RESPONSE_STOPS = 1.0
+"""Debevec's recovery links code values whose exposures differ by the sets' ratios; on noisy JPEG
+brackets of a 14-stop scene its error (max log, codes 20-250) is 0.1-0.16 from one stop up, 0.24
+at 2/3 stop and 1.2 at 1.04x, with a third of a stop's error at mid grey (docs/own_photos.md)."""
+MIN_RESPONSE_CODES = 0.95
+"""The code values well exposed in two photos of one set must cover this fraction of the trusted
+range (CONSTRAINED): at 100 % the curve is within 0.25 in log, at 70-90 % (scenes of 3-4 stops)
+off by 0.6-1.9 where nothing constrains it."""
+RESPONSE_BLACK = 0.01
+"""A camera response maps black to at most this fraction of white (sRGB: 0, gamma 2.2: 0)."""
+RESPONSE_CHANNELS = 1.5
+"""Colour channels of one camera's response differ by at most this factor between black and white
+(each is 1 at white; a camera's white balance makes grey grey)."""
+RESPONSE_FALL = 0.1
+"""Debevec's curve, before it is made increasing, may fall by at most this fraction anywhere."""
 RESPONSE_PIXELS = 200_000
 """Photos are subsampled to about this many pixels for the response recovery (it uses histograms)."""
 RESPONSE_SAMPLES = 250
@@ -88,8 +122,17 @@ class BracketTolerances:
     """Angle between the camera orientations."""
 
 
+class UnreliableResponse(ValueError):
+    """The brackets cannot carry a camera response, or the fitted one is implausible: the message says why."""
+
+
 def same_exposure(a: float, b: float) -> bool:
     return abs(math.log(a / b)) < SAME_EXPOSURE
+
+
+def spread_stops(exposures: list[float]) -> float:
+    """How many stops the exposures span."""
+    return math.log2(max(exposures) / min(exposures))
 
 
 def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -213,12 +256,16 @@ def recover_response(brackets: list[tuple[list[np.ndarray], list[float]]]) -> np
     """Camera response [256, 3]: code value k / 255 -> relative linear exposure, 1 at white.
 
     Debevec & Malik (1997) on each bracket (photos in [0, 1], subsampled with response_sample, and
-    their relative exposures); one camera has
-    one response, so the sets' curves are averaged in log space. Made strictly increasing, since
-    a response with a flat or falling step cannot be inverted.
+    their relative exposures); one camera has one response, so the sets' curves are averaged in log
+    space. Made strictly increasing, since a response with a flat or falling step cannot be
+    inverted. UnreliableResponse when the brackets cannot carry a curve (response_evidence) or the
+    curve is implausible (response_problem).
     """
     from colour_hdri import camera_response_functions_Debevec1997
 
+    missing_evidence = response_evidence(brackets)
+    if missing_evidence:
+        raise UnreliableResponse(missing_evidence)
     curves = []
     for images, exposures in brackets:
         stack = _stack(images, exposures)
@@ -231,10 +278,53 @@ def recover_response(brackets: list[tuple[list[np.ndarray], list[float]]]) -> np
                 n=RESPONSE_LEVELS,
             )
         curves.append(np.log(np.clip(curve, 1e-6, None)))
-    response = continue_ends(np.exp(np.mean(curves, axis=0)))
-    response = np.maximum.accumulate(np.clip(response, 1e-9, None), axis=0)
+    fitted = continue_ends(np.exp(np.mean(curves, axis=0)))
+    problem = response_problem(fitted / fitted[-1])
+    if problem:
+        raise UnreliableResponse(problem)
+    response = np.maximum.accumulate(np.clip(fitted, 1e-9, None), axis=0)
     response += np.arange(RESPONSE_LEVELS)[:, None] * 1e-9  # strictly increasing
     return (response / response[-1]).astype(np.float64)
+
+
+def response_evidence(brackets: list[tuple[list[np.ndarray], list[float]]]) -> str | None:
+    """What the brackets lack to carry a response (None: enough): an exposure spread of
+    MIN_RESPONSE_STOPS in some set, and codes well exposed in two of its photos over
+    MIN_RESPONSE_CODES of the trusted range."""
+    widest = max(spread_stops(exposures) for _, exposures in brackets)
+    if widest < MIN_RESPONSE_STOPS:
+        return f"the widest bracket spans {widest:.2f} stops, the response needs {MIN_RESPONSE_STOPS:g} or more"
+    covered = np.zeros(RESPONSE_LEVELS, bool)
+    trusted = slice(*(int(round(limit * (RESPONSE_LEVELS - 1))) for limit in CONSTRAINED))
+    for images, exposures in brackets:
+        order = np.argsort(exposures)
+        for darker, brighter in zip(order, order[1:]):
+            a, b = images[darker], images[brighter]
+            both = (a > CONSTRAINED[0]) & (a < CONSTRAINED[1]) & (b > CONSTRAINED[0]) & (b < CONSTRAINED[1])
+            for codes in (a[both], b[both]):
+                covered[np.round(codes * (RESPONSE_LEVELS - 1)).astype(int)] = True
+    coverage = float(covered[trusted].mean())
+    if coverage < MIN_RESPONSE_CODES:
+        return (
+            f"code values well exposed in two photos of a bracket cover {coverage:.0%} of the range, "
+            f"the response needs {MIN_RESPONSE_CODES:.0%}"
+        )
+    return None
+
+
+def response_problem(response: np.ndarray) -> str | None:
+    """Why a fitted response [256, 3] (1 at white) is implausible for a camera, or None."""
+    trusted = slice(*(int(round(limit * (RESPONSE_LEVELS - 1))) for limit in CONSTRAINED))
+    if response[0].max() > RESPONSE_BLACK:
+        return f"it maps black to {response[0].max():.2f} of white, not to about 0"
+    peak = np.maximum.accumulate(response, axis=0)
+    fall = float((1 - response[peak > 0] / peak[peak > 0]).max())
+    if fall > RESPONSE_FALL:
+        return f"it falls by {fall:.0%} on the way up to white"
+    channels = float((response[trusted].max(-1) / response[trusted].min(-1)).max())
+    if channels > RESPONSE_CHANNELS:
+        return f"its colour channels differ by up to {channels:.1f}x (a colour cast)"
+    return None
 
 
 def continue_ends(response: np.ndarray) -> np.ndarray:
@@ -273,14 +363,26 @@ def brightness_order(images: list[np.ndarray]) -> list[int]:
     return sorted(range(len(images)), key=lambda i: float(np.mean(images[i])))
 
 
-def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | None) -> bool:
-    """Whether two photos of a bracket show the same view (the first the shorter exposure).
+def alignment_view(image: np.ndarray) -> np.ndarray:
+    """Block means [h, w, 3] of a photo, at most ALIGN_SIZE pixels on the long side, for lines_up."""
+    factor = max(1, math.ceil(max(image.shape[:2]) / ALIGN_SIZE))
+    height, width = image.shape[0] // factor * factor, image.shape[1] // factor * factor
+    blocks = image[:height, :width].reshape(height // factor, factor, width // factor, factor, -1)
+    return blocks.mean((1, 3))
 
-    Over the pixels well exposed in the brighter photo: the darker one must not be clipped there
-    (a shorter exposure cannot be brighter), and where the darker one is above black the ratio of
-    the linearised pixels (the exposure ratio, for photos of one view) must be nearly the same
-    everywhere: its logs may spread by at most ALIGNED_LOG_SPREAD (median absolute deviation, so
-    edges and highlights do not decide it). Too few such pixels is no evidence either way: True.
+
+def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | None) -> bool:
+    """Whether two photos of a bracket (alignment_view, the first the shorter exposure) show the same view.
+
+    Over the pixels well exposed in the brighter photo the darker one must not be clipped (a
+    shorter exposure cannot be brighter). Where the darker one is above black too, the ratio of the
+    linearised pixels (the exposure ratio, for photos of one view) must be nearly the same
+    everywhere, measured as the spread (median absolute deviation) of its logs: at most
+    ALIGNED_LOG_SPREAD, no more than ALIGN_NEAR_TOLERANCE times the spread with one photo shifted
+    by a pixel (another viewpoint agrees better shifted), and at most ALIGN_FAR_FRACTION of the
+    spread shifted by ALIGN_FAR pixels (photos of one view agree in place far better than
+    misaligned; two viewpoints, or a featureless view, do not). Too few shared pixels is no
+    evidence either way: True.
     """
     # Whole pixels: a channel beside a clipped one is unreliable (demosaicing, highlight recovery).
     well_exposed = ((brighter > WELL_EXPOSED[0]) & (brighter < WELL_EXPOSED[1])).all(-1)
@@ -288,13 +390,31 @@ def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | No
         return True
     if np.mean(darker[well_exposed] >= WELL_EXPOSED[1]) > 0.05:
         return False
-    shared = well_exposed & (darker > DARK_FLOOR).all(-1)
-    if shared.sum() < MIN_SHARED_PIXELS:
+    above_black = (darker > DARK_FLOOR).all(-1)
+    if (well_exposed & above_black).sum() < MIN_SHARED_PIXELS:
         return True
-    ratios = np.log(np.clip(linearise(brighter, response)[shared].mean(-1), 1e-6, None)) - np.log(
-        np.clip(linearise(darker, response)[shared].mean(-1), 1e-6, None)
-    )
-    return bool(np.median(np.abs(ratios - np.median(ratios))) <= ALIGNED_LOG_SPREAD)
+    logs = [np.log(np.clip(linearise(image, response).mean(-1), 1e-6, None)) for image in (darker, brighter)]
+    spread = partial(_ratio_spread, *logs, above_black, well_exposed)
+    here = spread(0, 0)
+    directions = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    near = min(spread(dy, dx) for dy, dx in directions)
+    far = float(np.median([spread(ALIGN_FAR * dy, ALIGN_FAR * dx) for dy, dx in directions]))
+    return bool(here <= ALIGNED_LOG_SPREAD and here <= ALIGN_NEAR_TOLERANCE * near and here <= ALIGN_FAR_FRACTION * far)
+
+
+def _ratio_spread(
+    log_dark: np.ndarray, log_bright: np.ndarray, dark_ok: np.ndarray, bright_ok: np.ndarray, dy: int, dx: int
+) -> float:
+    """Median absolute deviation of log(bright / dark) with the bright photo shifted by (dy, dx),
+    over the same inner pixels at every shift up to ALIGN_FAR (inf when too few qualify)."""
+    height, width = log_dark.shape
+    inner = (slice(ALIGN_FAR, height - ALIGN_FAR), slice(ALIGN_FAR, width - ALIGN_FAR))
+    moved = (slice(ALIGN_FAR + dy, height - ALIGN_FAR + dy), slice(ALIGN_FAR + dx, width - ALIGN_FAR + dx))
+    shared = dark_ok[inner] & bright_ok[moved]
+    if shared.sum() < MIN_SHARED_PIXELS:
+        return math.inf
+    ratios = log_bright[moved][shared] - log_dark[inner][shared]
+    return float(np.median(np.abs(ratios - np.median(ratios))))
 
 
 def aligned_members(images: list[np.ndarray], order: list[int], start: int, response: np.ndarray | None) -> list[int]:
