@@ -145,9 +145,10 @@ def command_eval(config: EvalConfig) -> None:
 def command_render(config: Any) -> None:
     """`mono-hdr render` in a folder it claims: one writer at a time, never a folder another command or a
     person wrote; renders add to an earlier render's folder (files of the same name are replaced)."""
-    from mono_hdr_plugin.apps.render import render_command
+    from mono_hdr_plugin.apps.render import check_render_flags, render_command
     from mono_hdr_plugin.data.outputs import claim_output
 
+    check_render_flags(config)  # before the output folder is claimed
     with claim_output(config.out, "render", None, inputs=[config.checkpoint], keep=True):
         render_command(config)
 
