@@ -2,7 +2,10 @@
 fix, or in an acceptance that says what it did. Loader cases are in test_bad_input_matrix.py;
 docs/robustness.md lists every case with its test."""
 
+import shutil
+
 import pytest
+from cli_driver import run_cli, train_args, write_driver
 
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.core.validation import FlagError
@@ -42,3 +45,18 @@ def test_render_exr_frames_onto_a_file_is_refused(tmp_path):
                 str(tmp_path / "frames"),
             ]
         )
+
+
+# ---------------------------------------------------------------------------- warnings
+def test_warning_reaches_the_user_as_one_plain_line(tmp_path, disk_scene):
+    """Through the console entry point: `warning: <message>` on one line, not Python's
+    `path/loading.py:114: UserWarning: ...` followed by a line of source code."""
+    data = tmp_path / "scene"
+    shutil.copytree(disk_scene, data)
+    (data / "train_hdr" / "hdr_000.exr").unlink()
+    result = run_cli(write_driver(tmp_path), train_args(data, tmp_path / "run", 1), timeout=300)
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stderr.splitlines() if "no HDR ground truth" in line]
+    assert len(lines) == 1 and lines[0].startswith("warning: scene 'scene'"), result.stderr
+    assert "1 of 6 views have no HDR ground truth" in lines[0] and lines[0].endswith("meant to have them.")
+    assert "UserWarning" not in result.stderr and "warnings.warn(" not in result.stderr
