@@ -3,8 +3,9 @@
 from pathlib import Path
 from typing import Any
 
-from mono_hdr_plugin.core.validation import iter_flags
-from mono_hdr_plugin.training.config import TrainConfig
+from mono_hdr_plugin.core.validation import FlagError, iter_flags
+from mono_hdr_plugin.training.checkpoints import CheckpointError
+from mono_hdr_plugin.training.config import TrainConfig, step_limit
 
 
 class ResumeMismatch(ValueError):
@@ -62,3 +63,38 @@ def changed_flags(before: TrainConfig, after: TrainConfig) -> dict[str, tuple[An
 
 def describe_change(flag: str, change: tuple[Any, Any]) -> str:
     return f"{flag} {change[1]} (was {change[0]})"
+
+
+def check_run_to_resume(config: TrainConfig) -> None:
+    """--resume needs a checkpoint in --out; train takes no .pt file, so the fix is about --out or --resume."""
+    checkpoint = config.out / "checkpoints" / "latest.pt"
+    if not checkpoint.exists():
+        raise CheckpointError(
+            f"--resume: there is no run to continue in {config.out} ({checkpoint} does not exist): drop "
+            "--resume to start a new run there, or point --out at the folder of the run to continue"
+        )
+
+
+def steps_left_note(config: TrainConfig, step: int, finished: bool, train_seconds: float) -> str | None:
+    """What a resumed run at `step` has left to train: refused beyond --max-steps (the model asked for
+    cannot be had; nothing is written), a note when its budget is reached (it trains nothing, keeps its
+    checkpoint as it is and is only scored, as an evaluation that was interrupted needs), else None."""
+    limit = step_limit(config)
+    steps = f"--max-steps {limit}" + ("" if config.max_steps is not None else " (the default)")
+    if limit is not None and step > limit:
+        raise FlagError(
+            f"the run in {config.out} is at step {step} > {steps}: nothing to train, and its checkpoint is "
+            "kept as it is; raise --max-steps to train further, or score it with `mono-hdr eval --checkpoint "
+            f"{config.out / 'checkpoints' / 'latest.pt'}`"
+        )
+    if not finished:
+        return None
+    reached = (
+        f"step {step} = {steps}"
+        if limit is not None and step >= limit
+        else f"{train_seconds:.0f} s of training >= --max-seconds {config.max_seconds:g}"
+    )
+    return (
+        f"note: the run in {config.out} is at {reached}: nothing to train (raise it to train further); its "
+        "checkpoint is kept as it is and scored"
+    )

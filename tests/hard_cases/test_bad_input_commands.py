@@ -2,13 +2,18 @@
 fix, or in an acceptance that says what it did. Loader cases are in test_bad_input_matrix.py;
 docs/robustness.md lists every case with its test."""
 
+import inspect
+import json
 import shutil
 
 import pytest
+import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import run_cli, train_args, write_driver
+from hard_scenes import make_scene, make_trainer
 
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.core.validation import FlagError
+from mono_hdr_plugin.training.checkpoints import CheckpointError
 
 
 # ---------------------------------------------------------------------------- render
@@ -60,3 +65,96 @@ def test_warning_reaches_the_user_as_one_plain_line(tmp_path, disk_scene):
     assert len(lines) == 1 and lines[0].startswith("warning: scene 'scene'"), result.stderr
     assert "1 of 6 views have no HDR ground truth" in lines[0] and lines[0].endswith("meant to have them.")
     assert "UserWarning" not in result.stderr and "warnings.warn(" not in result.stderr
+
+
+# ---------------------------------------------------------------------------- train --resume
+@pytest.fixture
+def data(tmp_path, disk_scene):
+    """A private copy of the on-disk scene."""
+    folder = tmp_path / "scene"
+    shutil.copytree(disk_scene, folder)
+    return folder
+
+
+def test_resume_without_a_run_says_drop_resume_before_loading(tmp_path, monkeypatch):
+    """train takes no .pt file: the fix is to drop --resume or point --out at the run."""
+    import mono_hdr_plugin.data.loading as loading
+
+    monkeypatch.setattr(loading, "load_scene", lambda config: pytest.fail("the scene was loaded first"))
+    with pytest.raises(CheckpointError) as error:
+        main(train_args(tmp_path / "unused", tmp_path / "fresh", 1, "--resume"))
+    message = str(error.value)
+    assert "drop --resume" in message and "point --out at the folder of the run" in message
+    assert "fresh/checkpoints/latest.pt does not exist" in message and ".pt file" not in message
+    assert not (tmp_path / "fresh").exists()
+
+
+@pytest.fixture
+def run_at_step_3(tmp_path, data):
+    out = tmp_path / "run"
+    main(train_args(data, out, 3))
+    return out
+
+
+def test_resume_beyond_max_steps_is_refused_and_keeps_the_run(run_at_step_3, data):
+    checkpoint, metrics = run_at_step_3 / "checkpoints" / "latest.pt", run_at_step_3 / "metrics.json"
+    before = checkpoint.read_bytes(), metrics.read_bytes()
+    with pytest.raises(FlagError) as error:
+        main(train_args(data, run_at_step_3, 2, "--resume"))
+    assert f"the run in {run_at_step_3} is at step 3 > --max-steps 2: nothing to train" in str(error.value)
+    assert "raise --max-steps" in str(error.value)
+    assert (checkpoint.read_bytes(), metrics.read_bytes()) == before
+
+
+def test_resume_at_max_steps_trains_nothing_says_so_and_keeps_the_checkpoint(run_at_step_3, data, capsys):
+    checkpoint, metrics = run_at_step_3 / "checkpoints" / "latest.pt", run_at_step_3 / "metrics.json"
+    before = checkpoint.read_bytes()
+    metrics.unlink()  # as after a Ctrl-C during the final evaluation: resuming scores it
+    main(train_args(data, run_at_step_3, 3, "--resume"))
+    assert f"the run in {run_at_step_3} is at step 3 = --max-steps 3: nothing to train" in capsys.readouterr().err
+    assert checkpoint.read_bytes() == before
+    assert json.loads(metrics.read_text())["steps"] == 3
+
+
+# ---------------------------------------------------------------------------- --max-seconds alone
+class FakeClock:
+    """perf_counter that advances a fixed amount per call: a step of the trainer reads it twice."""
+
+    def __init__(self, seconds_per_call: float):
+        self.now, self.seconds_per_call = 0.0, seconds_per_call
+
+    def perf_counter(self) -> float:
+        self.now += self.seconds_per_call
+        return self.now
+
+
+@pytest.mark.parametrize(
+    "max_steps,max_seconds,steps",
+    [
+        (None, 10.0, 20),  # the time budget alone: 20 steps of 0.5 s, past the default step count
+        (None, None, 6),  # neither: the default step count
+        (8, 10.0, 8),  # both: whichever comes first
+    ],
+)
+def test_max_seconds_alone_is_not_cut_at_the_default_steps(tmp_path, monkeypatch, max_steps, max_seconds, steps):
+    """The default step count is made 6 here, so the test is quick; a step takes 0.5 s of a fake clock."""
+    import mono_hdr_plugin.training.config as config_module
+    import mono_hdr_plugin.training.trainer as trainer_module
+
+    monkeypatch.setattr(config_module, "DEFAULT_MAX_STEPS", 6)
+    monkeypatch.setattr(trainer_module.time, "perf_counter", FakeClock(0.5).perf_counter)
+    trainer = make_trainer(tmp_path, "voxel-grid", make_scene(size=8), max_steps=max_steps, max_seconds=max_seconds)
+    trainer.fit()
+    assert trainer.step == steps
+    if max_steps is None and max_seconds is not None:  # the schedules were sized from the time, not the default
+        assert trainer.run_length == trainer.backbone.max_steps == 20
+
+
+def test_help_says_how_the_two_budgets_combine():
+    from mono_hdr_plugin.training.config import TrainConfig
+
+    fields = {name: TrainConfig.__dataclass_fields__[name] for name in ("max_steps", "max_seconds")}
+    assert fields["max_steps"].default is None
+    source = inspect.getsource(TrainConfig)
+    assert "with --max-seconds alone, as many as fit in that time" in source
+    assert "Without\n    --max-steps the time alone ends the run" in source

@@ -212,11 +212,6 @@ def test_unknown_scene_and_no_scene(tmp_path):
         main(["train", "voxel-grid", "--out", str(tmp_path)])
 
 
-def test_resume_without_checkpoint_names_the_file(tmp_path, data):
-    with pytest.raises(CheckpointError, match=r"run/checkpoints/latest.pt does not exist"):
-        main(train_args(data, tmp_path / "run", "--resume"))
-
-
 def test_resume_from_another_backbones_checkpoint(tmp_path):
     scene = make_scene()
     trainer = make_trainer(tmp_path, "voxel-grid", scene, max_steps=1)
