@@ -52,6 +52,12 @@ def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[floa
     if view.hdr is not None:
         label = str(getattr(view.hdr, "path", view.name))
         pixels = view.hdr()
+        if pixels.shape[:2] != (view.camera.height, view.camera.width):  # named here: View would name the photo
+            raise DatasetError(
+                f"{label}: HDR ground truth is {pixels.shape[1]}x{pixels.shape[0]} but the photos of view "
+                f"{view.name or view.view_id} are {view.camera.width}x{view.camera.height}; export it at the "
+                "photos' size"
+            )
         reason = check_hdr_ground_truth(pixels, label)
         if reason:
             notes.append(f"{label} {reason}")
