@@ -1,9 +1,12 @@
-"""Which settings a resumed run may change, and how a change is described."""
+"""Which settings a resumed run may change, and how a change is described; the data a saved model
+may be scored on."""
 
+import warnings
 from pathlib import Path
 from typing import Any
 
 from mono_hdr_plugin.core.validation import FlagError, iter_flags
+from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.training.checkpoints import CheckpointError
 from mono_hdr_plugin.training.config import TrainConfig, step_limit
 
@@ -98,3 +101,24 @@ def steps_left_note(config: TrainConfig, step: int, finished: bool, train_second
         f"note: the run in {config.out} is at {reached}: nothing to train (raise it to train further); its "
         "checkpoint is kept as it is and scored"
     )
+
+
+def describe_data(name: str, source: str, train_views: int) -> str:
+    return f"scene {name!r} ({source}, {train_views} training views)"
+
+
+def check_scored_data(trained_on: dict | None, scene: SceneData, checkpoint: Path, flag: str) -> None:
+    """A model scored on data other than its run's (`eval --data/--scene`, e.g. a held-out copy): a
+    warning naming both; refused when the training views differ in number, as the model's per-view
+    state (cameras, learned exposures) was made for its own views. `trained_on`: the checkpoint's
+    "data" record (None in checkpoints that predate it)."""
+    if not trained_on or trained_on["fingerprint"] == scene.fingerprint():
+        return
+    was = describe_data(trained_on["scene"], trained_on["source"], trained_on["train_views"])
+    now = describe_data(scene.name, str(scene.metadata.get("source", "in memory")), len(scene.train))
+    if trained_on["train_views"] != len(scene.train):
+        raise FlagError(
+            f"{flag}: {checkpoint} was trained on {was}, which does not fit {now}: pass {flag} a copy of "
+            "the run's scene with its training views, or leave it out to score on the run's own data"
+        )
+    warnings.warn(f"{checkpoint} was trained on {was} and is scored on {now} ({flag})", stacklevel=2)

@@ -57,6 +57,7 @@ from mono_hdr_plugin.training.resume import (
     changed_flags,
     check_run_to_resume,
     describe_change,
+    describe_data,
     steps_left_note,
 )
 
@@ -396,14 +397,10 @@ class Trainer:
         data = payload.get("data")
         data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
         if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
-            trained_on = (
-                f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)"
-                if data
-                else "other data"
-            )
+            trained_on = describe_data(data["scene"], data["source"], data["train_views"]) if data else "other data"
+            here = describe_data(self.scene.name, self.scene.metadata.get("source", "in memory"), len(self.scene.train))
             reasons.append(
-                f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
-                f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
+                f"it was trained on {trained_on}, not on {here}"
                 + (f"; changed: {', '.join(data_changes)}" if data_changes else "")
             )
         if reasons:

@@ -158,3 +158,57 @@ def test_help_says_how_the_two_budgets_combine():
     source = inspect.getsource(TrainConfig)
     assert "with --max-seconds alone, as many as fit in that time" in source
     assert "Without\n    --max-steps the time alone ends the run" in source
+
+
+# ---------------------------------------------------------------------------- eval --data
+def copy_without_frame(source, target, split: str):
+    """A copy of the scene without the last frame of `split` (and its exposure entries)."""
+    shutil.copytree(source, target)
+    transforms = json.loads((target / f"transforms_{split}.json").read_text())
+    dropped = transforms["frames"].pop()["file_path"]
+    (target / f"transforms_{split}.json").write_text(json.dumps(transforms))
+    exposures = json.loads((target / f"exposure_{split}.json").read_text())
+    kept = {name: value for name, value in exposures.items() if not name.startswith(dropped + "_")}
+    (target / f"exposure_{split}.json").write_text(json.dumps(kept))
+    return target
+
+
+def test_eval_on_other_data_says_what_the_model_was_trained_on(run_at_step_3, data, tmp_path):
+    """A held-out copy (here: one test view fewer) is scored, with one line naming both scenes."""
+    other = copy_without_frame(data, tmp_path / "held-out", "test")
+    checkpoint = run_at_step_3 / "checkpoints" / "latest.pt"
+    with pytest.warns(UserWarning) as caught:
+        main(["eval", "--checkpoint", str(checkpoint), "--data", str(other), "--out", str(tmp_path / "e")])
+    messages = [str(w.message) for w in caught if "was trained on" in str(w.message)]
+    assert messages == [
+        f"{checkpoint} was trained on scene 'scene' ({data}, 3 training views) and is scored on scene "
+        f"'held-out' ({other}, 3 training views) (--data)"
+    ]
+    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["steps"] == 3
+
+
+def test_eval_on_its_own_data_says_nothing(run_at_step_3, data, tmp_path, recwarn):
+    checkpoint = run_at_step_3 / "checkpoints" / "latest.pt"
+    main(["eval", "--checkpoint", str(checkpoint), "--data", str(data), "--out", str(tmp_path / "e")])
+    assert not [w for w in recwarn if "was trained on" in str(w.message)]
+
+
+def test_eval_on_data_with_other_training_views_is_refused(run_at_step_3, data, tmp_path):
+    other = copy_without_frame(data, tmp_path / "fewer", "train")
+    with pytest.raises(
+        FlagError,
+        match=r"--data: .*latest.pt was trained on scene 'scene' \(.*3 training views\), "
+        r"which does not fit scene 'fewer' \(.*2 training views\)",
+    ):
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(run_at_step_3 / "checkpoints" / "latest.pt"),
+                "--data",
+                str(other),
+                "--out",
+                str(tmp_path / "e"),
+            ]
+        )
+    assert not (tmp_path / "e").exists()
