@@ -212,3 +212,40 @@ def test_eval_on_data_with_other_training_views_is_refused(run_at_step_3, data, 
             ]
         )
     assert not (tmp_path / "e").exists()
+
+
+# ---------------------------------------------------------------------------- scenes
+class RenderStarted(Exception):
+    """Raised where Mitsuba would start rendering."""
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    """An empty render cache, and Mitsuba replaced by a stop: nothing renders for minutes."""
+    import mono_hdr_plugin.apps.studio.render as studio_render
+
+    def render_starts():
+        raise RenderStarted
+
+    monkeypatch.setenv("MONO_HDR_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(studio_render, "_mitsuba", render_starts)
+    return tmp_path / "cache"
+
+
+def test_scenes_on_a_fresh_machine_says_it_renders_before_rendering(fresh_cache, capsys):
+    from mono_hdr_plugin.apps.studio.scenes import SCENES
+
+    with pytest.raises(RenderStarted):
+        main(["scenes"])
+    notice, first, *rest = capsys.readouterr().err.splitlines()
+    assert notice.startswith(f"{len(SCENES)} of {len(SCENES)} built-in scenes are not rendered yet")
+    assert f"about {2 * len(SCENES)} minutes on 2 cores, once (cached in {fresh_cache / 'studio'})" in notice
+    assert "`mono-hdr scenes --no-render` lists them now" in notice
+    assert first.startswith(f"rendering studio scene {next(iter(SCENES))} with Mitsuba (")
+    assert f"cached in {fresh_cache / 'studio'} for next time" in first and not rest
+
+
+def test_scenes_no_render_lists_at_once(fresh_cache, capsys):
+    main(["scenes", "--no-render"])  # Mitsuba is never started
+    captured = capsys.readouterr()
+    assert "Built-in studio scenes" in captured.out and "demo" in captured.out and not captured.err

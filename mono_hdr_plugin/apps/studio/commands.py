@@ -4,7 +4,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from mono_hdr_plugin.apps.studio.render import dynamic_range, render_scene
+from mono_hdr_plugin.apps.studio.render import (
+    RENDER_MINUTES,
+    cache_dir,
+    dynamic_range,
+    render_cache_path,
+    render_scene,
+)
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
 from mono_hdr_plugin.core.validation import SEED
@@ -31,10 +37,11 @@ class SynthConfig:
 
 @dataclass
 class ScenesConfig:
-    """List the built-in studio scenes."""
+    """List the built-in studio scenes with their dynamic range and render noise (rendered first where not cached)."""
 
     render: bool = True
-    """Measure the dynamic range from the (cached) renders; False lists without rendering."""
+    """Measure the dynamic range and the seed agreement from the renders (cached; a scene not yet
+    rendered takes about 2 minutes on 2 cores, once); --no-render lists at once without them."""
 
 
 def png_bits(scene: StudioScene) -> int:
@@ -105,6 +112,15 @@ def list_scenes_command(config: ScenesConfig) -> None:
         "description",
     ):
         table.add_column(column)
+    missing = [scene.name for scene in SCENES.values() if not render_cache_path(scene).is_file()]
+    if config.render and missing:
+        Console(stderr=True, soft_wrap=True).print(
+            f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet ({', '.join(missing)}): "
+            f"rendering them first, about {RENDER_MINUTES * len(missing)} minutes on 2 cores, once (cached in "
+            f"{cache_dir() / 'studio'}); `mono-hdr scenes --no-render` lists them now without the measured columns",
+            markup=False,
+            highlight=False,
+        )
     for row in list_scenes(config.render):
         if row["dynamic_range"] is None:
             ratio = agreement = "not rendered"
