@@ -249,3 +249,17 @@ def test_scenes_no_render_lists_at_once(fresh_cache, capsys):
     main(["scenes", "--no-render"])  # Mitsuba is never started
     captured = capsys.readouterr()
     assert "Built-in studio scenes" in captured.out and "demo" in captured.out and not captured.err
+
+
+def test_synth_to_a_layout_it_cannot_write_is_refused_before_rendering(fresh_cache, tmp_path):
+    """Mitsuba would stop the test with RenderStarted: the flag is named before minutes of rendering."""
+    with pytest.raises(FlagError, match=r"--layout 'bogus' cannot be written; choose one of hdr-gs, "):
+        main(["synth", "--scene", "demo", "--layout", "bogus", "--out", str(tmp_path / "synth")])
+    assert not (tmp_path / "synth").exists()
+
+
+# ---------------------------------------------------------------------------- data flags
+def test_data_and_scene_together_are_refused(tmp_path, data):
+    """--data used to win silently over --scene."""
+    with pytest.raises(FlagError, match=rf"--data {data} and --scene demo name two scenes: pass one of them"):
+        main([*train_args(data, tmp_path / "run", 1), "--scene", "demo"])

@@ -13,7 +13,7 @@ from mono_hdr_plugin.apps.studio.render import (
 )
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
-from mono_hdr_plugin.core.validation import SEED
+from mono_hdr_plugin.core.validation import SEED, FlagError
 
 
 @dataclass
@@ -52,9 +52,12 @@ def png_bits(scene: StudioScene) -> int:
 def synth(config: SynthConfig) -> Path:
     """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
     from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
-    from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.data.layouts import writable_layouts, write_layout
     from mono_hdr_plugin.data.outputs import claim_output
 
+    if config.layout not in writable_layouts():  # before minutes of rendering, not after
+        raise FlagError(f"--layout {config.layout!r} cannot be written; choose one of {', '.join(writable_layouts())}")
+    get_scene(config.scene)
     # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
     with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
         scene = get_scene(config.scene)
