@@ -88,7 +88,8 @@ def _read_split(folder: Path, split: str, first_view_id: int):
     angle = json_number(
         transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)", FIELD_OF_VIEW
     )
-    poses, first_listed = [], {}
+    poses = []
+    first_listed: dict[str, int] = {}  # file_path -> index of the frame that lists it first
     for index, frame in enumerate(frames):
         where = f"{transforms_file}: frames[{index}]"
         frame = json_object(frame, where)
