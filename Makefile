@@ -24,7 +24,7 @@ DEMO_STEPS := 1000
 DEMO_EXPECTED_HDR_PSNR := 39.7
 
 demo: install
-	$(BIN)/mono-hdr train gs --scene demo --max-steps $(DEMO_STEPS) --out outputs/demo
+	$(BIN)/mono-hdr train gs --scene demo --max-steps $(DEMO_STEPS) --out outputs/demo --overwrite
 	@$(BIN)/python -c "import json; m = json.load(open('outputs/demo/metrics.json')); \
 	print(f'demo: HDR PSNR {m[\"hdr_psnr\"]:.2f} dB after {m[\"steps\"]} steps (README: about $(DEMO_EXPECTED_HDR_PSNR) dB)')"
 

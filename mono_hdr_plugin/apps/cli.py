@@ -8,6 +8,7 @@ code 2, and Ctrl-C exit code 130 (with the command that resumes an interrupted t
 import os
 import shlex
 import sys
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -145,9 +146,10 @@ def command_eval(config: EvalConfig) -> None:
 def command_render(config: Any) -> None:
     """`mono-hdr render` in a folder it claims: one writer at a time, never a folder another command or a
     person wrote; renders add to an earlier render's folder (files of the same name are replaced)."""
-    from mono_hdr_plugin.apps.render import render_command
+    from mono_hdr_plugin.apps.render import check_render_flags, render_command
     from mono_hdr_plugin.data.outputs import claim_output
 
+    check_render_flags(config)  # before the output folder is claimed
     with claim_output(config.out, "render", None, inputs=[config.checkpoint], keep=True):
         render_command(config)
 
@@ -321,15 +323,25 @@ def error_line(error: BaseException) -> str:
     return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
 
 
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one plain line on stderr, `warning: ...`: the user needs its message, not the
+    module and source line that raised it (MONO_HDR_DEBUG=1 keeps Python's format)."""
+    text = " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+    errors.print(Text.assemble(("warning:", "bold yellow"), f" {text}"), highlight=False)
+
+
 def run() -> None:
     """Console entry point: user errors print one line and exit 2 (set MONO_HDR_DEBUG=1 for the
-    traceback); Ctrl-C exits 130, after training with the command that resumes it."""
+    traceback); Ctrl-C exits 130, after training with the command that resumes it; warnings are
+    one line each."""
     from mono_hdr_plugin.core.registry import RegistryError
     from mono_hdr_plugin.data.outputs import OutputError
     from mono_hdr_plugin.training.checkpoints import CheckpointError
     from mono_hdr_plugin.training.hooks import TrainingInterrupted
     from mono_hdr_plugin.training.trainer import TrainingDiverged
 
+    if not os.environ.get("MONO_HDR_DEBUG"):
+        warnings.showwarning = show_warning
     try:
         main()
     except KeyboardInterrupt as interrupt:

@@ -15,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from mono_hdr_plugin.apps.camera_paths import PathKind, camera_path
 from mono_hdr_plugin.apps.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, at_least
+from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, FlagError, at_least
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.training.evaluation import first_per_camera, save_hdr_renders
@@ -95,16 +95,56 @@ def progress_bar() -> Progress:
     )
 
 
-def render_command(config: RenderConfig) -> None:
+VIDEO_SUFFIXES = (".mp4", ".mkv", ".mov")
+"""Containers that hold the H.264 stream write_video makes (imageio picks its writer by the suffix)."""
+# The renders each flag shapes: a flag given for another render would be ignored without a word.
+FLAG_RENDERS = {
+    "exposures": ("views",),
+    "max_views": ("views",),
+    "frames": ("path", "sweep"),
+    "split": ("path", "sweep"),
+    "video": ("path", "sweep"),
+    "fps": ("path", "sweep"),
+    "output": ("path", "sweep"),
+    "scale": ("path", "sweep"),
+    "exr_frames": ("path",),
+    "ev": ("path",),
+    "view": ("sweep",),
+    "ev_min": ("sweep",),
+    "ev_max": ("sweep",),
+    "strip": ("sweep",),
+}
+RENDER_FLAGS = {
+    "views": "test-view renders (no --path or --sweep)",
+    "path": "--path renders",
+    "sweep": "--sweep renders",
+}
+
+
+def check_render_flags(config: RenderConfig) -> None:
+    """Refuse, before the (slow) checkpoint load, a flag of another kind of render and an output file
+    whose suffix would not get what its flag writes, naming the flag."""
     if config.path is not None and config.sweep:
-        raise ValueError("--path and --sweep are two different renders: give one of them")
-    for exposure in config.exposures:  # checked before the (slow) checkpoint load
-        if not exposure > 0:
-            raise ValueError(f"--exposures must be positive seconds, got {exposure}")
-    if not config.scale > 0:
-        raise ValueError(f"--scale must be positive, got {config.scale}")
-    if config.fps < 1:
-        raise ValueError(f"--fps must be at least 1, got {config.fps}")
+        raise FlagError("--path and --sweep are two different renders: give one of them")
+    kind = "path" if config.path is not None else "sweep" if config.sweep else "views"
+    defaults = RenderConfig(checkpoint=config.checkpoint)
+    for name, renders in FLAG_RENDERS.items():
+        if kind not in renders and getattr(config, name) != getattr(defaults, name):
+            flag = "--" + name.replace("_", "-")
+            wanted = " and ".join(RENDER_FLAGS[render] for render in renders)
+            raise FlagError(f"{flag} applies to {wanted} only, not to {RENDER_FLAGS[kind]}: leave {flag} out")
+    if config.video is not None and config.video.suffix.lower() not in VIDEO_SUFFIXES:
+        raise FlagError(f"--video must name a {', '.join(VIDEO_SUFFIXES)} file (H.264), got {config.video}")
+    if config.strip is not None and config.strip.suffix.lower() != ".png":
+        raise FlagError(f"--strip must name a .png file, got {config.strip}")
+    if config.exr_frames is not None and config.exr_frames.is_file():
+        raise FlagError(
+            f"--exr-frames must name a folder (frames are written into it), got the file {config.exr_frames}"
+        )
+
+
+def render_command(config: RenderConfig) -> None:
+    """`mono-hdr render` with flags check_render_flags accepted."""
     if config.path is None and not config.sweep:
         written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
         console.print(f"wrote {len(written)} images to {config.out}")

@@ -7,6 +7,7 @@ multi-GB CUDA torch. The build goes to $TORCH_EXTENSIONS_DIR when set, else to
 
 import functools
 import os
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -36,6 +37,8 @@ def load_cpp_extension(name: str, source: Path) -> ModuleType:
     suffix, flags = vector_flags()
     build_dir = build_root / f"{name}_{suffix}"
     build_dir.mkdir(parents=True, exist_ok=True)
+    if not any(build_dir.glob("*.so")):  # a first build takes minutes: say so before the compiler is silent
+        print(f"building the C++ kernel {name} (first use, about 1.5 minutes; cached in {build_dir})", file=sys.stderr)
     return load(
         name=f"mono_hdr_{name}_{suffix}",
         sources=[str(source)],

@@ -14,7 +14,7 @@ class DataConfig:
     data: Path | None = None
     """A dataset folder on disk (HDR-NeRF synthetic/real or HDR-GS layout, detected)."""
     scene: str | None = None
-    """A built-in studio scene (see `mono-hdr scenes`); used when --data is not given."""
+    """A built-in studio scene (see `mono-hdr scenes`), instead of --data."""
     layout: str = "auto"
     """On-disk layout of --data: auto detects it from the files present; or a registered layout
     (`mono-hdr layouts`: hdr-gs, hdr-nerf-synthetic, hdr-nerf-real, or a plugin's)."""

@@ -7,7 +7,7 @@ from pathlib import PurePosixPath
 import numpy as np
 import torch
 
-from mono_hdr_plugin.core.validation import check_flags
+from mono_hdr_plugin.core.validation import FlagError, check_flags
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View, check_hdr_ground_truth, warn_uninformative_hdr
@@ -19,6 +19,8 @@ from mono_hdr_plugin.data.sources import named_scene, scene_names
 
 def captured_scene(config: DataConfig) -> CapturedScene:
     """Every photo of the scene that `config` names (--data folder or --scene name)."""
+    if config.data is not None and config.scene is not None:
+        raise FlagError(f"--data {config.data} and --scene {config.scene} name two scenes: pass one of them")
     if config.data is not None:
         return read_layout(config.data, config.layout)
     if config.scene is not None:
@@ -52,6 +54,12 @@ def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[floa
     if view.hdr is not None:
         label = str(getattr(view.hdr, "path", view.name))
         pixels = view.hdr()
+        if pixels.shape[:2] != (view.camera.height, view.camera.width):  # named here: View would name the photo
+            raise DatasetError(
+                f"{label}: HDR ground truth is {pixels.shape[1]}x{pixels.shape[0]} but the photos of view "
+                f"{view.name or view.view_id} are {view.camera.width}x{view.camera.height}; export it at the "
+                "photos' size"
+            )
         reason = check_hdr_ground_truth(pixels, label)
         if reason:
             notes.append(f"{label} {reason}")

@@ -30,11 +30,14 @@ class TrainConfig:
     preset: str | None = None
     """Start from a named preset of the backbone (listed by `mono-hdr backbones`; default: its
     first); other flags override it."""
-    max_steps: int = 3000
-    """Optimiser steps (the run ends here or at --max-seconds, whichever comes first)."""
+    max_steps: int | None = None
+    """Optimiser steps (default 3000; with --max-seconds alone, as many as fit in that time). With
+    both flags the run ends at whichever comes first; schedules (learning-rate decay,
+    densification) end with the run."""
     max_seconds: float | None = None
-    """Stop after this many seconds of training (evaluation and checkpoints not counted).
-    Schedules scale to the steps that fit, estimated from the measured step time."""
+    """Stop after this many seconds of training (evaluation and checkpoints not counted). Without
+    --max-steps the time alone ends the run. Schedules (learning-rate decay, densification) are
+    sized to the steps that fit, re-estimated from the measured step time while training."""
     out: Path = Path("outputs/run")
     """Output folder: checkpoints/, renders/, metrics.json."""
     resume: bool = False
@@ -75,6 +78,17 @@ class TrainConfig:
         "nan_patience": at_least(1),
         "viewer_port": between(0, 65535),
     }
+
+
+DEFAULT_MAX_STEPS = 3000
+
+
+def step_limit(config: TrainConfig) -> int | None:
+    """The step a run ends at: --max-steps; without it 3000, or none when --max-seconds alone
+    bounds the run (a user who gives a time budget expects it to be used)."""
+    if config.max_steps is not None:
+        return config.max_steps
+    return None if config.max_seconds is not None else DEFAULT_MAX_STEPS
 
 
 def parse_view_ratio(ratio: str) -> tuple[int, int]:

@@ -14,6 +14,7 @@ from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoin
 from mono_hdr_plugin.training.config import TrainConfig, saved_train_config
 from mono_hdr_plugin.training.frames import ExposureModel, calibrate
 from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.resume import check_scored_data
 
 
 @dataclass
@@ -63,6 +64,8 @@ def load_trained_model(
         from mono_hdr_plugin.data.loading import load_scene
 
         scene = load_scene(config.data)
+    if data_path is not None or scene_name is not None:
+        check_scored_data(payload.get("data"), scene, checkpoint, "--data" if data_path is not None else "--scene")
     pipeline = Pipeline.create(
         payload["backbone_name"],
         config.backbone,

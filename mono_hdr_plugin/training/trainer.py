@@ -31,12 +31,14 @@ from mono_hdr_plugin.data.outputs import OutputError, claim_output
 from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, Targets
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.training.config import (
+    DEFAULT_MAX_STEPS,
     TRAIN_OUTPUTS,
     TrainConfig,
     check_train_config,
     hdr_supervised_views,
     parse_view_ratio,
     saved_train_config,
+    step_limit,
 )
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.hooks import (
@@ -49,7 +51,15 @@ from mono_hdr_plugin.training.hooks import (
     interrupt_requests,
 )
 from mono_hdr_plugin.training.pipeline import Pipeline
-from mono_hdr_plugin.training.resume import DATA_FLAGS, ResumeMismatch, changed_flags, describe_change
+from mono_hdr_plugin.training.resume import (
+    DATA_FLAGS,
+    ResumeMismatch,
+    changed_flags,
+    check_run_to_resume,
+    describe_change,
+    describe_data,
+    steps_left_note,
+)
 
 console = Console(stderr=True)
 # Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
@@ -81,7 +91,9 @@ class Trainer:
             scene.scene_info(),
             build_view_exposures(config.exposure, scene),
         )
-        self.run_length = config.max_steps
+        # Under --max-seconds alone this is a first guess: the measured step time replaces it.
+        limit = step_limit(config)
+        self.run_length = DEFAULT_MAX_STEPS if limit is None else limit
         self.pipeline.set_run_length(self.run_length)
         self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
         groups = self.pipeline.parameter_groups()
@@ -112,8 +124,8 @@ class Trainer:
     @property
     def finished(self) -> bool:
         """--max-steps reached, or --max-seconds of training spent."""
-        budget = self.config.max_seconds
-        return self.step >= self.config.max_steps or (budget is not None and self.train_seconds >= budget)
+        budget, limit = self.config.max_seconds, step_limit(self.config)
+        return (limit is not None and self.step >= limit) or (budget is not None and self.train_seconds >= budget)
 
     def _update_run_length(self) -> None:
         """Under --max-seconds, re-estimate the steps that fit from the recent step time and tell
@@ -127,7 +139,9 @@ class Trainer:
             return
         per_step = sum(self.recent_step_seconds) / len(self.recent_step_seconds)
         remaining = max(budget - self.train_seconds, 0.0)
-        estimate = min(self.config.max_steps, self.step + max(1, int(remaining / per_step)))
+        estimate = self.step + max(1, int(remaining / per_step))
+        limit = step_limit(self.config)
+        estimate = estimate if limit is None else min(limit, estimate)
         if abs(estimate - self.run_length) > 0.02 * self.run_length:
             self.run_length = estimate
             self.pipeline.set_run_length(estimate)
@@ -250,7 +264,8 @@ class Trainer:
                 if self.saved_step != self.step:
                     self.save()
                 raise TrainingInterrupted(self.step, self.checkpoint_path()) from None
-            self.save()
+            if self.saved_step != self.step:  # a resumed run that had nothing to train keeps its file
+                self.save()
             if self.pipeline.exposures is not None:
                 write_json(config.out / "learned_exposures.json", self.pipeline.exposures.report())
         try:
@@ -353,7 +368,8 @@ class Trainer:
         self.saved_step = payload["step"]
         self.train_seconds = payload["train_seconds"]
         if self.config.max_seconds is not None:  # keep the schedule the time budget had scaled to
-            self.run_length = min(payload["run_length"], self.config.max_steps)
+            limit = step_limit(self.config)
+            self.run_length = payload["run_length"] if limit is None else min(payload["run_length"], limit)
             self.pipeline.set_run_length(self.run_length)
         self.generator.set_state(payload["generator"])
         torch.set_rng_state(payload["torch_rng"])
@@ -381,14 +397,10 @@ class Trainer:
         data = payload.get("data")
         data_changes = [describe_change(flag, change) for flag, change in changes.items() if flag in DATA_FLAGS]
         if (data["fingerprint"] != self.scene.fingerprint()) if data else data_changes:
-            trained_on = (
-                f"scene {data['scene']!r} ({data['source']}, {data['train_views']} training views)"
-                if data
-                else "other data"
-            )
+            trained_on = describe_data(data["scene"], data["source"], data["train_views"]) if data else "other data"
+            here = describe_data(self.scene.name, self.scene.metadata.get("source", "in memory"), len(self.scene.train))
             reasons.append(
-                f"it was trained on {trained_on}, not on scene {self.scene.name!r} "
-                f"({self.scene.metadata.get('source', 'in memory')}, {len(self.scene.train)} training views)"
+                f"it was trained on {trained_on}, not on {here}"
                 + (f"; changed: {', '.join(data_changes)}" if data_changes else "")
             )
         if reasons:
@@ -426,6 +438,8 @@ def run_training(
 def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | None = None) -> Trainer:
     """Load the scene (unless given) and set up a Trainer, resuming when asked."""
     check_train_config(config)
+    if config.resume:  # before the (slow) data load
+        check_run_to_resume(config)
     if scene is None:
         from mono_hdr_plugin.data.loading import load_scene
 
@@ -433,5 +447,8 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     trainer = Trainer(config, backbone_name, scene)
     if config.resume:
         trainer.restore(load_checkpoint(trainer.checkpoint_path()))
-        console.print(f"resumed from {trainer.checkpoint_path()} at step {trainer.step}", markup=False)
+        console.print(f"resumed from {trainer.checkpoint_path()} at step {trainer.step}", markup=False, soft_wrap=True)
+        note = steps_left_note(config, trainer.step, trainer.finished, trainer.train_seconds)
+        if note:
+            console.print(note, markup=False, soft_wrap=True)
     return trainer

@@ -212,11 +212,6 @@ def test_unknown_scene_and_no_scene(tmp_path):
         main(["train", "voxel-grid", "--out", str(tmp_path)])
 
 
-def test_resume_without_checkpoint_names_the_file(tmp_path, data):
-    with pytest.raises(CheckpointError, match=r"run/checkpoints/latest.pt does not exist"):
-        main(train_args(data, tmp_path / "run", "--resume"))
-
-
 def test_resume_from_another_backbones_checkpoint(tmp_path):
     scene = make_scene()
     trainer = make_trainer(tmp_path, "voxel-grid", scene, max_steps=1)
@@ -275,3 +270,69 @@ def test_checkpoint_cut_at_every_tenth_of_its_length(tmp_path):
         path.write_bytes(whole[: len(whole) * tenth // 10])
         with pytest.raises(CheckpointError, match="latest.pt cannot be read"):
             load_checkpoint(path)
+
+
+# ------------------------------------------------------------- loaders, issue 33
+def test_layout_flag_on_a_folder_of_another_layout_names_both(data):
+    """Not the hdr-gs reader's own "run COLMAP": the folder is fine, the flag is wrong."""
+    with pytest.raises(
+        DatasetError,
+        match=rf"{data} looks like layout hdr-nerf-synthetic, not hdr-gs: pass --layout hdr-nerf-synthetic "
+        r"\(or leave --layout out\)",
+    ):
+        load_scene(DataConfig(data=data, layout="hdr-gs"))
+
+
+def test_wrong_size_hdr_exr_is_named_not_the_photo(data):
+    from mono_hdr_plugin.data.io import write_exr
+
+    write_exr(data / "train_hdr" / "hdr_001.exr", np.ones((8, 8, 3), np.float32))
+    with pytest.raises(DatasetError) as error:
+        load_scene(DataConfig(data=data))
+    message = str(error.value)
+    assert message.startswith(str(data / "train_hdr" / "hdr_001.exr")), message
+    assert "is 8x8 but the photos of view ./train/r_1 are 16x16" in message and ".png" not in message
+
+
+def test_frame_listed_twice_names_file_and_frame(data):
+    edit_json(data / "transforms_train.json", lambda t: t["frames"].append(t["frames"][0]))
+    with pytest.raises(
+        DatasetError,
+        match=r"transforms_train.json: frames\[3\].file_path './train/r_0' is listed twice \(also frames\[0\]\)",
+    ):
+        load_scene(DataConfig(data=data))
+
+
+@pytest.fixture
+def gs_data(tmp_path):
+    folder = tmp_path / "gs"
+    write_disk_scene(folder, layout="hdr-gs")
+    return folder
+
+
+def test_two_colmap_entries_of_one_view_are_refused(gs_data):
+    """A second image entry 000_1.png takes the same <view>_<e> photos as 000_0.png."""
+    import pycolmap
+
+    model = pycolmap.Reconstruction(str(gs_data / "sparse" / "0"))
+    first = model.images[1]
+    model.add_image_with_trivial_frame(
+        pycolmap.Image(name="000_1.png", camera_id=1, image_id=99), first.cam_from_world()
+    )
+    model.write(str(gs_data / "sparse" / "0"))
+    with pytest.raises(DatasetError, match=r"sparse/0: images 000_0.png and 000_1.png both take the photo 000_0.png"):
+        load_scene(DataConfig(data=gs_data))
+
+
+def test_exposure_entry_of_no_photo_is_refused_in_hdr_gs(gs_data):
+    """As the HDR-NeRF synthetic reader refuses an entry that matches no frame."""
+    edit_json(gs_data / "exposures.json", lambda table: table.update({"042_0.png": 2.0}))
+    with pytest.raises(DatasetError, match=r"exposures.json: entries \['042_0.png'\] match no photo of .*sparse/0"):
+        load_scene(DataConfig(data=gs_data))
+
+
+def test_splits_holding_out_every_view_names_the_file(gs_data):
+    names = sorted(json.loads((gs_data / "exposures.json").read_text()))
+    (gs_data / "splits.json").write_text(json.dumps({"test": [n for n in names if n.endswith("_0.png")]}))
+    with pytest.raises(DatasetError, match=r"splits.json: holds out every image of sparse/0 for testing"):
+        load_scene(DataConfig(data=gs_data))

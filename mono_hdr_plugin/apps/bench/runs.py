@@ -222,7 +222,7 @@ class EvaluateAlong(TrainingHook):
         due = (
             trainer.train_seconds >= budget * fraction
             if budget is not None
-            else trainer.step >= trainer.config.max_steps * fraction
+            else trainer.step >= trainer.run_length * fraction
         )
         if due or trainer.finished:
             metrics = trainer.evaluate()

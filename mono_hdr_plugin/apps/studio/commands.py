@@ -4,10 +4,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from mono_hdr_plugin.apps.studio.render import dynamic_range, render_scene
+from mono_hdr_plugin.apps.studio.render import (
+    RENDER_MINUTES,
+    cache_dir,
+    dynamic_range,
+    render_cache_path,
+    render_scene,
+)
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
-from mono_hdr_plugin.core.validation import SEED
+from mono_hdr_plugin.core.validation import SEED, FlagError
 
 
 @dataclass
@@ -31,10 +37,11 @@ class SynthConfig:
 
 @dataclass
 class ScenesConfig:
-    """List the built-in studio scenes."""
+    """List the built-in studio scenes with their dynamic range and render noise (rendered first where not cached)."""
 
     render: bool = True
-    """Measure the dynamic range from the (cached) renders; False lists without rendering."""
+    """Measure the dynamic range and the seed agreement from the renders (cached; a scene not yet
+    rendered takes about 2 minutes on 2 cores, once); --no-render lists at once without them."""
 
 
 def png_bits(scene: StudioScene) -> int:
@@ -45,9 +52,12 @@ def png_bits(scene: StudioScene) -> int:
 def synth(config: SynthConfig) -> Path:
     """Render (or reuse the cached render of) a scene and write every photo at t1..t5."""
     from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
-    from mono_hdr_plugin.data.layouts import write_layout
+    from mono_hdr_plugin.data.layouts import writable_layouts, write_layout
     from mono_hdr_plugin.data.outputs import claim_output
 
+    if config.layout not in writable_layouts():  # before minutes of rendering, not after
+        raise FlagError(f"--layout {config.layout!r} cannot be written; choose one of {', '.join(writable_layouts())}")
+    get_scene(config.scene)
     # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
     with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
         scene = get_scene(config.scene)
@@ -105,6 +115,15 @@ def list_scenes_command(config: ScenesConfig) -> None:
         "description",
     ):
         table.add_column(column)
+    missing = [scene.name for scene in SCENES.values() if not render_cache_path(scene).is_file()]
+    if config.render and missing:
+        Console(stderr=True, soft_wrap=True).print(
+            f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet ({', '.join(missing)}): "
+            f"rendering them first, about {RENDER_MINUTES * len(missing)} minutes on 2 cores, once (cached in "
+            f"{cache_dir() / 'studio'}); `mono-hdr scenes --no-render` lists them now without the measured columns",
+            markup=False,
+            highlight=False,
+        )
     for row in list_scenes(config.render):
         if row["dynamic_range"] is None:
             ratio = agreement = "not rendered"

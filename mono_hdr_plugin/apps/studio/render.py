@@ -168,20 +168,36 @@ def luminance(radiance: np.ndarray) -> np.ndarray:
     return radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
+RENDER_MINUTES = 2
+"""About how long one scene takes to render on 2 cores (six took 11 minutes), for the notice."""
+
+
+def render_cache_path(scene: StudioScene) -> Path:
+    return cache_dir() / "studio" / f"{scene.name}-{render_key(scene)}.npz"
+
+
 def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
-    """Every view of `scene`, from the cache when the same render was done before."""
-    path = cache_dir() / "studio" / f"{scene.name}-{render_key(scene)}.npz"
+    """Every view of `scene`, from the cache when the same render was done before; a new render says
+    first, in a plain line, what it does and for how long (a progress bar follows in a terminal)."""
+    path = render_cache_path(scene)
     if use_cache and path.is_file():
         with np.load(path) as cached:
             return SceneRender(**{name: cached[name] for name in SceneRender.__dataclass_fields__})
     from rich.console import Console
     from rich.progress import Progress
 
+    console = Console(stderr=True, soft_wrap=True)
+    cameras = scene.cameras()
+    console.print(
+        f"rendering studio scene {scene.name} with Mitsuba ({len(cameras)} views x 2 x {scene.spp} spp, about "
+        f"{RENDER_MINUTES} minutes on 2 cores)" + (f"; cached in {path.parent} for next time" if use_cache else ""),
+        markup=False,
+        highlight=False,
+    )
     mitsuba = _mitsuba()
     content = _to_mitsuba(scene.content(), mitsuba)
-    cameras = scene.cameras()
     first_views, second_views, positions, hit = [], [], [], []
-    with Progress(console=Console(stderr=True), transient=True) as progress:
+    with Progress(console=console, transient=True) as progress:
         task = progress.add_task(
             f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)", total=len(cameras)
         )

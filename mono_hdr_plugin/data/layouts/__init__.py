@@ -54,6 +54,13 @@ def read_layout(folder: str | Path, layout: str = "auto") -> CapturedScene:
     layouts = LAYOUTS.available()
     if layout not in layouts:
         raise DatasetError(f"unknown --layout {layout!r}; choose auto or one of {', '.join(layouts)}")
+    if not layouts[layout].plugin.detect(folder):
+        # The reader's own error would name a file of its layout ("run COLMAP") when the folder is another's.
+        other = next((name for name, entry in layouts.items() if entry.plugin.detect(folder)), None)
+        if other is not None:
+            raise DatasetError(
+                f"{folder} looks like layout {other}, not {layout}: pass --layout {other} (or leave --layout out)"
+            )
     return layouts[layout].plugin.read(folder)
 
 

@@ -235,6 +235,8 @@ def _test_names(folder: Path, names: list[str]) -> set[str] | None:
     unknown = sorted(set(test) - set(names))
     if unknown:
         raise DatasetError(f"{path}: names images that are not in sparse/0: {', '.join(unknown[:5])}; fix the names")
+    if set(test) >= set(names):
+        raise DatasetError(f"{path}: holds out every image of sparse/0 for testing; leave some views to train on")
     return set(test)
 
 
@@ -283,6 +285,31 @@ def _check_camera_sizes(views: list[CapturedView], width: int, height: int, fold
             )
 
 
+def _check_each_photo_once(
+    views: list[CapturedView], names: list[str], exposures: _ExposureSource, folder: Path
+) -> None:
+    """A photo belongs to one view (two COLMAP entries of one view would train and score it twice), and
+    every exposures.json entry to a photo of the model (a stray one is a photo the model lost). `names`:
+    the COLMAP image name of each view."""
+    owner: dict[str, str] = {}
+    for name, view in zip(names, views, strict=True):
+        for shot in view.shots:
+            if shot.name in owner:
+                raise DatasetError(
+                    f"{folder / MODEL_FOLDER}: images {owner[shot.name]} and {name} both take the photo "
+                    f"{shot.name} (a view is its image entry and its <view>_<e> siblings); keep one image "
+                    "entry per view"
+                )
+            owner[shot.name] = name
+    if exposures.table is not None:
+        stray = sorted(set(exposures.table) - set(owner) - set(names), key=natural_key)
+        if stray:
+            raise DatasetError(
+                f"{exposures.json_path}: entries {stray[:3]} match no photo of {folder / MODEL_FOLDER}; the "
+                "exposure file is out of step with the COLMAP model: remove them or re-run process-data"
+            )
+
+
 def read(folder: Path) -> CapturedScene:
     """Every photo of an HDR-GS scene, with the COLMAP points for initialisation."""
     model = _read_model(folder)
@@ -297,6 +324,7 @@ def read(folder: Path) -> CapturedScene:
         views.append(_captured_view(view_id, image, shots, model, folder, test_names))
     width, height = check_one_size(sizes, images)
     _check_camera_sizes(views, width, height, folder)
+    _check_each_photo_once(views, [image.name for _, image in entries], exposures, folder)
     points, colours = _points(model, folder / MODEL_FOLDER)
     bounds = (
         bounds_from_points(points.numpy()) if points is not None else bounds_from_cameras([v.camera for v in views])

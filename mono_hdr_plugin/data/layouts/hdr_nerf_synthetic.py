@@ -89,17 +89,20 @@ def _read_split(folder: Path, split: str, first_view_id: int):
         transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)", FIELD_OF_VIEW
     )
     poses = []
+    first_listed: dict[str, int] = {}  # file_path -> index of the frame that lists it first
     for index, frame in enumerate(frames):
         where = f"{transforms_file}: frames[{index}]"
         frame = json_object(frame, where)
         if "file_path" not in frame or "transform_matrix" not in frame:
             raise DatasetError(f"{where} needs 'file_path' and 'transform_matrix'; add them or remove the frame")
-        poses.append(
-            (
-                json_name(frame["file_path"], f"{where}.file_path"),
-                json_matrix(frame["transform_matrix"], f"{where}.transform_matrix", 4, 4),
+        file_path = json_name(frame["file_path"], f"{where}.file_path")
+        if file_path in first_listed:  # one photo would count as two views (and twice in the metrics)
+            raise DatasetError(
+                f"{where}.file_path {file_path!r} is listed twice (also frames[{first_listed[file_path]}]); "
+                "remove the duplicate frame"
             )
-        )
+        first_listed[file_path] = index
+        poses.append((file_path, json_matrix(frame["transform_matrix"], f"{where}.transform_matrix", 4, 4)))
     listed = {f"{file_path}_{e}.png" for file_path, _ in poses for e in range(MAX_EXPOSURES)}
     stray = sorted(set(exposures) - listed)
     if stray:
