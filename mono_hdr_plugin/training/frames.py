@@ -9,7 +9,6 @@ import math
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor
 
 from mono_hdr_plugin.core.calibration import fit_scale
 from mono_hdr_plugin.core.colour import srgb_decode
@@ -17,7 +16,6 @@ from mono_hdr_plugin.core.exposure import reference_view
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.training.calibration import training_samples
 from mono_hdr_plugin.training.pipeline import Pipeline
-
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,5 @@
 """Display curves, exposure and tone mapping, against hand-computed values and the HDR metric."""
 
-import math
-
 import pytest
 import torch
 
