@@ -180,6 +180,7 @@ class TestScaleAnchor:
         method = build_method(MethodConfig(method="mono", hdr_scale_anchor=0.5), "mse")
         truth = torch.rand(8, 8, 3) * 4 + 0.1
         photo = torch.rand(8, 8, 3)
+
         def terms(prediction):
             return method.losses(MethodOutput(ldr=photo, hdr=prediction), Targets(photo, 1.0, truth), step=0)
 
