@@ -100,7 +100,8 @@ def write_curves_report(store: RowStore, out: Path) -> None:
             f"{fmt(final.get('hdr_median_ratio'), 3)} | {fmt(gt_max_fall(row['curve']))} | "
             f"{fmt(scale_spread(row['curve']), 3)} | {fmt(final['hdr_ssim'], 3)} | {fmt(final['ldr_psnr'])} | "
             f"{fmt(final['ldr_ssim'], 3)} | {row['fps_ldr']:.1f} | {row['fps_ldr_hdr']:.1f} | "
-            f"{row['fps_ldr'] / row['fps_ldr_hdr']:.3f}x | {row['backbone_statistics'].get('gaussians', '')} | {row['peak_memory_mib']:.0f} |"
+            f"{row['fps_ldr'] / row['fps_ldr_hdr']:.3f}x | {row['backbone_statistics'].get('gaussians', '')} | "
+            f"{row['peak_memory_mib']:.0f} |"
         )
     failed = [row for row in store.rows.values() if row["status"] != "ok"]
     lines += [f"\nFailed: {row['key']}: {row['error']}" for row in failed]
