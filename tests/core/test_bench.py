@@ -247,6 +247,16 @@ class TestBenchCurves:
         assert "voxel-grid / hdr-gs" in text and "50.0" in text
         assert (tmp_path / "curves.png").stat().st_size > 0
 
+    def test_a_step_budget_ends_every_run_at_its_steps(self, tmp_path, steps_of_50ms, monkeypatch):
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
+        config = BenchCurvesConfig(
+            out=tmp_path, backbones=("voxel-grid",), methods=("mono",), budget_steps=6, eval_points=2, max_eval_views=1
+        )
+        row = next(iter(bench_curves(config)["rows"].values()))
+        assert [point["steps"] for point in row["curve"]] == [3, 6]
+        assert row["curve"][-1]["radiance_scale"] > 0 and row["curve"][-1]["hdr_psnr_masked"] is not None
+
     def test_curve_summaries_by_hand(self):
         curve = [
             {"hdr_psnr_gt_max": 20.0, "radiance_scale": 9.0},

@@ -41,6 +41,9 @@ class BenchCurvesConfig:
     """0, 1, 2: the single training exposure t1, t3, t5."""
     budget_seconds: float | None = None
     """Training seconds per run (default 60 quick, 600 full)."""
+    budget_steps: int | None = None
+    """Optimiser steps per run instead of seconds: figures that do not depend on the machine's load
+    (the x axis stays training seconds, which do). With --budget-seconds too, whichever ends first."""
     eval_points: int = 5
     """Evaluations along each run."""
     max_eval_views: int | None = None
@@ -51,6 +54,7 @@ class BenchCurvesConfig:
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
         "budget_seconds": POSITIVE,
+        "budget_steps": at_least(1),
         "eval_points": at_least(1),
         "max_eval_views": at_least(1),
     }
@@ -71,8 +75,10 @@ def curve_specs(config: BenchCurvesConfig) -> list[RunSpec]:
 
 
 def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
+    default_seconds = None if config.budget_steps else (60.0 if config.quick else 600.0)
     budget = RunBudget(
-        seconds=config.budget_seconds or (60.0 if config.quick else 600.0),
+        seconds=config.budget_seconds or default_seconds,
+        steps=config.budget_steps,
         eval_points=config.eval_points,
         max_eval_views=config.max_eval_views or (4 if config.quick else None),
     )
