@@ -234,6 +234,9 @@ def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Call
 
 
 def print_metrics(metrics: dict, path: Path) -> None:
+    from mono_hdr_plugin.core.calibration import RadianceCalibration
+    from mono_hdr_plugin.training.evaluation import HDR_KEYS
+
     table = Table(
         title=Text(
             f"{metrics['backbone']} / {metrics['method']} on {metrics['scene']} "
@@ -242,9 +245,12 @@ def print_metrics(metrics: dict, path: Path) -> None:
     )
     table.add_column("metric")
     table.add_column("value", justify="right")
-    for key in ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ldr_psnr", "ldr_ssim"):
+    for key in (*HDR_KEYS, "ldr_psnr", "ldr_ssim"):
         value = metrics.get(key)
         table.add_row(key, "n/a (no HDR ground truth)" if value is None else f"{value:.4f}")
+    if "radiance_scale" in metrics:
+        calibration = RadianceCalibration(metrics["radiance_scale"], metrics["radiance_units"])
+        table.add_row("HDR calibration", Text(calibration.describe()))
     for exposure, value in metrics["ldr_psnr_per_exposure"].items():
         table.add_row(f"ldr_psnr @ {exposure} s", f"{value:.4f}")
     console.print(table)

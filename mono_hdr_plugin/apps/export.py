@@ -18,6 +18,7 @@ from rich.progress import track
 from torch import Tensor
 
 from mono_hdr_plugin.apps.display import to_display, to_uint8
+from mono_hdr_plugin.core.calibration import UNIT_TEXT
 from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.core.validation import FRACTION, POSITIVE, FlagError, at_least
 from mono_hdr_plugin.data.io import atomic_path, read_ply_vertices, write_ply_vertices
@@ -79,7 +80,7 @@ def export_splats(model: TrainedModel, path: Path) -> list[Path]:
 
 def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
     """OUT.converters.npz: the method's weights by state-dict name (float32); OUT.converters.json:
-    format, method and its config, the exposure model, and how to apply the weights."""
+    format, method and its config, the radiance calibration, the exposure model, and how to apply the weights."""
     weights_path, description_path = converters_paths(ply)
     method = model.pipeline.method
     arrays = {name: value.detach().float().numpy() for name, value in method.state_dict().items()}
@@ -97,9 +98,13 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
         "hdr_recipe": method.hdr_recipe
         or f"the registered method {method.config.method!r}: apply its forward to "
         "the Gaussians' colours (see its documentation)",
+        "radiance_calibration": model.pipeline.calibration.state(),
+        "radiance": "calibrated HDR = radiance_calibration.scale * the recipe's hdr, in units of "
+        + UNIT_TEXT[model.pipeline.calibration.units],
         "reference_exposure_seconds": model.exposure.reference_exposure,
         "display_scale": model.exposure.display_scale,
-        "display": "at exposure t seconds a display shows srgb(display_scale * hdr * t / reference_exposure_seconds)",
+        "display": "at exposure t seconds a display shows srgb(display_scale * calibrated HDR * t / "
+        "reference_exposure_seconds)",
         "arrays": {name: list(array.shape) for name, array in arrays.items()},
     }
     with atomic_path(description_path) as temporary:

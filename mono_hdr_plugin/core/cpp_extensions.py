@@ -8,6 +8,7 @@ multi-GB CUDA torch. The build goes to $TORCH_EXTENSIONS_DIR when set, else to
 import functools
 import os
 import sys
+import time
 from pathlib import Path
 from types import ModuleType
 
@@ -22,6 +23,30 @@ def vector_flags() -> tuple[str, list[str]]:
     if torch.backends.cpu.get_cpu_capability() in ("AVX2", "AVX512"):
         return "avx2", ["-mavx2", "-mfma"]
     return "generic", []
+
+
+STALE_LOCK_SECONDS = 900
+"""A build takes a minute or two; a lock older than this was left by a build that was killed."""
+
+
+def clear_stale_lock(build_dir: Path) -> None:
+    """torch's build lock (build_dir/lock) is a file its holder deletes when done: a build killed
+    half-way leaves it, and every later process would wait for it forever, silently. Remove it
+    when it is old; say what is being waited for when it is not."""
+    lock = build_dir / "lock"
+    try:
+        age = time.time() - lock.stat().st_mtime
+    except FileNotFoundError:
+        return
+    if age > STALE_LOCK_SECONDS:
+        lock.unlink(missing_ok=True)
+        print(f"removed {lock}, left {age / 60:.0f} min ago by a kernel build that was stopped", file=sys.stderr)
+    else:
+        print(
+            f"waiting for another process to finish building the kernels in {build_dir} (if none is running, "
+            f"delete {lock})",
+            file=sys.stderr,
+        )
 
 
 @functools.cache
@@ -39,6 +64,7 @@ def load_cpp_extension(name: str, source: Path) -> ModuleType:
     build_dir.mkdir(parents=True, exist_ok=True)
     if not any(build_dir.glob("*.so")):  # a first build takes minutes: say so before the compiler is silent
         print(f"building the C++ kernel {name} (first use, about 1.5 minutes; cached in {build_dir})", file=sys.stderr)
+    clear_stale_lock(build_dir)
     return load(
         name=f"mono_hdr_{name}_{suffix}",
         sources=[str(source)],

@@ -1,5 +1,8 @@
 """Image metrics: PSNR, SSIM (scikit-image / 3DGS settings), mu-law HDR metrics, optional LPIPS.
 
+HDR scores (docs/method.md, "Which HDR score to read"): own-max and GT-max are the official
+protocols; aligned and emitter-masked are ours, so that one peak pixel cannot swing a score.
+
 All functions take torch tensors [H, W, C] (or [N, C] for PSNR) with LDR values in [0, 1].
 """
 
@@ -11,7 +14,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from mono_hdr_plugin.core.calibration import median_log_ratio, well_exposed
+
 MU = 5000.0
+EMITTER_FRACTION = 0.001
+"""The emitter-masked HDR PSNR leaves out this fraction of pixels: the ground truth's brightest."""
 SSIM_SIGMA = 1.5
 SSIM_RADIUS = 5  # scikit-image: int(truncate * sigma + 0.5) with truncate = 3.5
 
@@ -107,6 +114,45 @@ def hdr_metrics(pred_hdr: Tensor, gt_hdr: Tensor) -> dict[str, float]:
         results[f"hdr_psnr{suffix}"] = psnr(pred, gt)
         results[f"hdr_ssim{suffix}"] = ssim(pred.double(), gt.double()).item()
     return results
+
+
+def emitter_mask(gt_hdr: Tensor) -> Tensor:
+    """[H, W] False at the ground truth's brightest ceil(EMITTER_FRACTION x pixels) pixels (by their
+    brightest channel: the lights and the sun), True elsewhere."""
+    peaks = gt_hdr.reshape(-1, gt_hdr.shape[-1]).amax(-1)
+    left_out = math.ceil(EMITTER_FRACTION * peaks.numel())
+    keep = torch.ones_like(peaks, dtype=torch.bool)
+    keep[torch.topk(peaks, left_out).indices] = False
+    return keep.reshape(gt_hdr.shape[:-1])
+
+
+def aligning_scale(pred_hdr: Tensor, gt_hdr: Tensor) -> float:
+    """The global scale that brings the prediction to the ground truth: the median of gt / pred over
+    the positive values of the pixels `emitter_mask` keeps (1.0 when there are none)."""
+    keep = emitter_mask(gt_hdr)
+    return median_log_ratio(gt_hdr[keep], pred_hdr[keep])[0]
+
+
+def hdr_scale_metrics(pred_hdr: Tensor, gt_hdr: Tensor, photo: Tensor) -> dict[str, float]:
+    """The scores of the HDR's absolute level and of all but its brightest pixels:
+
+    hdr_psnr_aligned: GT-max mu-law PSNR of the prediction times `aligning_scale` (the best global
+        scale for this view: what GT-max would be if the calibration were exact);
+    hdr_psnr_masked: GT-max mu-law PSNR over the pixels `emitter_mask` keeps;
+    hdr_median_ratio: median of pred / gt over the positive values of pixels the photo exposes well
+        (every channel inside core.calibration.WELL_EXPOSED), NaN when there are none: 1 when the
+        calibrated level is right.
+    """
+    gt_max = gt_hdr.max()
+    pred, gt = normalise_hdr(pred_hdr * aligning_scale(pred_hdr, gt_hdr), gt_max), normalise_hdr(gt_hdr, gt_max)
+    keep = emitter_mask(gt_hdr)
+    exposed = well_exposed(photo)
+    ratio, count = median_log_ratio(pred_hdr[exposed], gt_hdr[exposed])
+    return {
+        "hdr_psnr_aligned": psnr(pred, gt),
+        "hdr_psnr_masked": psnr(normalise_hdr(pred_hdr, gt_max)[keep], gt[keep]),
+        "hdr_median_ratio": ratio if count else math.nan,
+    }
 
 
 class LpipsUnavailable(RuntimeError):

@@ -47,6 +47,11 @@ class MethodConfig:
     """L_h2l: H2L-CC(normalised HDR render) against the LDR photo (Mono-HDR only)."""
     alpha: float = 0.6
     """Weight of L_hdr."""
+    hdr_scale_anchor: float = 0.0
+    """Weight of L_anchor: L_hdr with the render and the ground truth both divided by the ground
+    truth's maximum, so the HDR's absolute level is trained too (L_hdr divides each by its own
+    maximum, which leaves the level free). 0: off, the paper's recipe; the radiance calibration
+    sets the level of every output either way (docs/method.md, "Calibrated HDR")."""
     beta: float | None = None
     """Weight of L_h2l; default 0.05 with the 3DGS loss, 0.01 with the NeRF loss."""
     loss: Literal["auto", "l1_dssim", "mse"] = "auto"
@@ -62,6 +67,7 @@ class MethodConfig:
     flag_rules: ClassVar = {
         "hidden": at_least(1),
         "alpha": NON_NEGATIVE,
+        "hdr_scale_anchor": NON_NEGATIVE,
         "beta": NON_NEGATIVE,
         "dssim_weight": FRACTION,
         "converter_lr": POSITIVE,
@@ -158,6 +164,10 @@ class HdrMethod(nn.Module):
                 terms[f"ldr_aux{index}"] = self._loss(saturate_like(aux, targets.ldr), targets.ldr)
         if config.use_hdr_loss and targets.hdr is not None:
             terms["hdr"] = config.alpha * self._loss(normalise_hdr(output.hdr), normalise_hdr(targets.hdr))
+        if config.hdr_scale_anchor and targets.hdr is not None:
+            peak = targets.hdr.max()
+            anchored = self._loss(normalise_hdr(output.hdr, peak), normalise_hdr(targets.hdr, peak))
+            terms["hdr_anchor"] = config.hdr_scale_anchor * anchored
         return terms
 
     def parameter_groups(self) -> list[dict]:

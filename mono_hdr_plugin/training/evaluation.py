@@ -9,6 +9,7 @@ import torch
 from mono_hdr_plugin.core.metrics import (
     LpipsUnavailable,
     hdr_metrics,
+    hdr_scale_metrics,
     load_lpips,
     lpips_distance,
     normalise_hdr,
@@ -45,7 +46,15 @@ def evaluation_views(pipeline: Pipeline, scene: SceneData, max_eval_views: int |
     return [v for v in views if v.view_id in view_ids]
 
 
-HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
+HDR_KEYS = (
+    "hdr_psnr",
+    "hdr_ssim",
+    "hdr_psnr_gt_max",
+    "hdr_ssim_gt_max",
+    "hdr_psnr_aligned",
+    "hdr_psnr_masked",
+    "hdr_median_ratio",
+)
 
 
 @torch.no_grad()
@@ -55,8 +64,9 @@ def evaluate(
     """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
 
     The headline LDR figures average the exposures the model was trained at (t1/t3/t5), each
-    exposure the mean of its views; HDR figures are mu-law with both normalisations
-    (docs/method.md), the mean over cameras. "views" lists every evaluated view's own figures.
+    exposure the mean of its views; HDR figures (of the calibrated HDR, `Pipeline.calibration`) are
+    mu-law with both official normalisations, aligned and emitter-masked (core.metrics), the mean over
+    cameras (docs/method.md). "views" lists every evaluated view's own figures.
     With `render_dir`, each camera's renders are written there (`save_view_renders`).
     """
     views = evaluation_views(pipeline, scene, max_eval_views)
@@ -73,10 +83,12 @@ def evaluate(
             for view in views
         ]
     metrics = _summarise_rows(pipeline, scene, rows)
+    metrics["radiance_scale"] = pipeline.calibration.scale
+    metrics["radiance_units"] = pipeline.calibration.units
     metrics["test_views"] = len({v.view_id for v in views})
     metrics["ldr_exposure_fitted"] = sum(view.name in fitted for view in views)
     for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
-        values = [row[key] for row in rows if key in row]
+        values = [row[key] for row in rows if key in row and not math.isnan(row[key])]  # NaN: no pixel to score
         metrics[key] = _mean(values) if values else None
     if lpips_skipped:
         metrics["lpips_skipped"] = lpips_skipped
@@ -106,6 +118,7 @@ def _score_view(
     if score_hdr:
         assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
         row.update(hdr_metrics(output.hdr, view.hdr))
+        row.update(hdr_scale_metrics(output.hdr, view.hdr, view.image))
         if lpips_model is not None:
             row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
         if render_dir is not None:

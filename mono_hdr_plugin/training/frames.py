@@ -9,19 +9,13 @@ import math
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor
 
+from mono_hdr_plugin.core.calibration import fit_scale
 from mono_hdr_plugin.core.colour import srgb_decode
 from mono_hdr_plugin.core.exposure import reference_view
 from mono_hdr_plugin.data.dataset import SceneData
+from mono_hdr_plugin.training.calibration import training_samples
 from mono_hdr_plugin.training.pipeline import Pipeline
-
-# Pixels whose LDR value lies in this range are neither clipped nor lost in noise: the display
-# scale is fitted on them.
-WELL_EXPOSED = (0.05, 0.95)
-# Long side of the training views rendered to fit the display scale: a few thousand pixels suffice.
-CALIBRATION_SIZE = 48
-CALIBRATION_VIEWS = 3
 
 
 @dataclass(frozen=True)
@@ -31,9 +25,9 @@ class ExposureModel:
     reference_exposure: seconds shown at EV 0 (the training exposure; of several, the reference
         view's, `core.exposure.reference_view`).
     display_scale: k in `linear display value = k * hdr * t / reference_exposure`. HDR renders
-        have no absolute scale (Mono-HDR's losses normalise by the maximum), so k is fitted: at
-        the reference exposure the sRGB-decoded LDR render equals k * hdr over well-exposed pixels
-        of the training views (median ratio).
+        are calibrated (core.calibration), but in units that need not be the display's (a ground
+        truth's), so k is fitted: the sRGB-decoded training photos, brought to the reference
+        exposure, equal k * hdr over their well-exposed pixels (median ratio, core.calibration.fit_scale).
     ldr_exposures: exposures at which the method's own LDR output is a photo at that exposure.
         Empty when it renders any exposure (the baselines' learned camera response), else the
         single training exposure of Mono-HDR's LDR branch (none after multi-exposure training,
@@ -56,33 +50,21 @@ class ExposureModel:
         return math.log2(exposure / self.reference_exposure)
 
 
-def fit_display_scale(ldr: Tensor, hdr: Tensor) -> float:
-    """k with srgb_decode(ldr) ~ k * hdr: the median ratio over well-exposed, lit pixel values;
-    a mid-grey mapping of the median radiance when no pixel qualifies."""
-    low, high = WELL_EXPOSED
-    usable = (ldr > low) & (ldr < high) & (hdr > 1e-8)
-    if usable.sum() >= 16:
-        return float((srgb_decode(ldr[usable]) / hdr[usable]).median())
-    lit = hdr[hdr > 1e-8]
-    return 0.18 / float(lit.median()) if lit.numel() else 1.0
-
-
 @torch.no_grad()
 def calibrate(pipeline: Pipeline, scene: SceneData) -> ExposureModel:
-    """The ExposureModel of a model trained on `scene` (renders a few small training views)."""
+    """The ExposureModel of a model trained on `scene`: its display scale is fitted on the training
+    views' photos, so at EV 0 and a training view's exposure the HDR display shows that photo."""
     exposures = scene.train_exposures
     reference = scene.train[reference_view(scene.train)].exposure  # the training's own reference view
-    views = {view.view_id: view for view in scene.train}
-    chosen = list(views.values())[:: max(1, len(views) // CALIBRATION_VIEWS)][:CALIBRATION_VIEWS]
-    ldr, hdr = [], []
-    for view in chosen:
-        factor = min(1.0, CALIBRATION_SIZE / max(view.camera.width, view.camera.height))
-        frame = pipeline.render(view.camera.scaled(factor), reference)
-        ldr.append(frame.ldr.reshape(-1))
-        hdr.append(frame.hdr.reshape(-1))
+    samples = training_samples(pipeline, scene)
+    display_scale, _ = fit_scale(
+        torch.cat([srgb_decode(sample.photo) * (reference / sample.exposure) for sample in samples]),
+        torch.cat([sample.hdr for sample in samples]),
+        torch.cat([sample.photo for sample in samples]),
+    )
     return ExposureModel(
         reference_exposure=reference,
-        display_scale=fit_display_scale(torch.cat(ldr), torch.cat(hdr)),
+        display_scale=display_scale,
         renders_any_exposure=pipeline.renders_any_exposure,
         ldr_exposures=tuple(exposures) if len(exposures) == 1 else (),
     )

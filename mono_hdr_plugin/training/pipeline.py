@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.calibration import RadianceCalibration
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
@@ -34,7 +35,8 @@ class Frame:
     """One rendered view, linear.
 
     ldr: [H, W, 3] the LDR render at `exposure` (clamped to [0, 1]).
-    hdr: [H, W, 3] linear HDR radiance (the method's own scale).
+    hdr: [H, W, 3] linear HDR radiance, calibrated (`Pipeline.calibration`).
+    A camera with `pixels` set gives [N, 3] / [N] images of those pixels.
     depth: [H, W] the backbone's depth, None when it gives none.
     alpha: [H, W] accumulated opacity (1: the ray hit something), None when the backbone gives none.
     """
@@ -48,7 +50,9 @@ class Frame:
 
 class Pipeline(nn.Module):
     """`backbone` renders per-primitive LDR features; `method` lifts them to HDR and scores them;
-    `exposures` (optional, mono_hdr_plugin.core.exposure) gives each training view its own exposure."""
+    `exposures` (optional, mono_hdr_plugin.core.exposure) gives each training view its own exposure;
+    `calibration` sets the absolute level of every rendered HDR image (core.calibration; fitted by
+    training.calibration, saved with the model as its extra state)."""
 
     def __init__(
         self, backbone_name: str, backbone: Backbone, method: HdrMethod, exposures: ViewExposures | None = None
@@ -58,6 +62,7 @@ class Pipeline(nn.Module):
         self.backbone = backbone
         self.method = method
         self.exposures = exposures
+        self.calibration = RadianceCalibration()
 
     @classmethod
     def create(
@@ -78,6 +83,18 @@ class Pipeline(nn.Module):
     @property
     def method_name(self) -> str:
         return self.method.config.method
+
+    def get_extra_state(self) -> dict:
+        return {"radiance_calibration": self.calibration.state()}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.calibration = RadianceCalibration.from_state(state["radiance_calibration"])
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        """Also a state saved before calibration existed: it loads uncalibrated (the loader fits one)."""
+        if "_extra_state" not in state_dict:
+            state_dict = {**state_dict, "_extra_state": {"radiance_calibration": RadianceCalibration().state()}}
+        return super().load_state_dict(state_dict, strict, assign)
 
     # ------------------------------------------------------------------ training
     def parameter_groups(self) -> list[dict]:
@@ -152,7 +169,8 @@ class Pipeline(nn.Module):
     def render(
         self, camera: Camera, exposure: float, cancelled: Callable[[], bool] | None = None, with_depth: bool = False
     ) -> Frame:
-        """A whole image at `exposure` seconds, in pieces of `backbone.render_chunk` rays.
+        """A whole image at `exposure` seconds (or the camera's `pixels`), in pieces of
+        `backbone.render_chunk` rays; the HDR calibrated.
 
         `cancelled` is asked between pieces; a True answer raises RenderCancelled (the viewer's
         camera moved on). Depth and opacity come with the colours where the backbone composites
@@ -174,7 +192,7 @@ class Pipeline(nn.Module):
                 part_depth = features.extras["render_depth"]()
             for value, pieces in ((part_depth, depth), (features.extras.get("alpha"), alpha)):
                 pieces.append(None if value is None else value.reshape(-1))
-        shape = (camera.height, camera.width)
+        shape = (camera.height, camera.width) if camera.pixels is None else (len(camera.pixels),)
 
         def image(pieces: list[torch.Tensor | None]) -> torch.Tensor | None:
             present = [piece for piece in pieces if piece is not None]
@@ -182,7 +200,7 @@ class Pipeline(nn.Module):
 
         return Frame(
             ldr=torch.cat(ldr).reshape(*shape, 3).clamp(0.0, 1.0),
-            hdr=torch.cat(hdr).reshape(*shape, 3),
+            hdr=torch.cat(hdr).reshape(*shape, 3) * self.calibration.scale,
             depth=image(depth),
             alpha=image(alpha),
             exposure=exposure,

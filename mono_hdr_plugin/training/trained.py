@@ -10,6 +10,7 @@ from pathlib import Path
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
 from mono_hdr_plugin.data.dataset import SceneData
+from mono_hdr_plugin.training.calibration import fit_radiance_calibration
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
 from mono_hdr_plugin.training.config import TrainConfig, saved_train_config
 from mono_hdr_plugin.training.frames import ExposureModel, calibrate
@@ -83,4 +84,6 @@ def load_trained_model(
             "that wrote it"
         ) from error
     pipeline.eval()
+    if not pipeline.calibration.fitted:  # a checkpoint written before calibration existed
+        pipeline.calibration = fit_radiance_calibration(pipeline, scene, payload["step"])
     return TrainedModel(pipeline, scene, config, payload["step"], payload["train_seconds"])

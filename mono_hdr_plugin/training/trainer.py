@@ -29,6 +29,7 @@ from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.outputs import OutputError, claim_output
 from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, Targets
+from mono_hdr_plugin.training.calibration import fit_radiance_calibration
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.training.config import (
     DEFAULT_MAX_STEPS,
@@ -282,8 +283,15 @@ class Trainer:
         return metrics
 
     # --------------------------------------------------------------- evaluation
+    def calibrate(self) -> None:
+        """Refit the radiance scale (training.calibration) on the current model, unless it already is."""
+        if self.pipeline.calibration.step != self.step:
+            self.pipeline.calibration = fit_radiance_calibration(self.pipeline, self.scene, self.step)
+
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
-        """Test-view metrics of the current model (eval mode), with the step and training seconds."""
+        """Test-view metrics of the current model (eval mode, HDR calibrated), with the step and
+        training seconds."""
+        self.calibrate()
         metrics = evaluate(
             self.pipeline,
             self.scene,
@@ -315,6 +323,7 @@ class Trainer:
                 f"not saved. {self.last_checkpoint_note()}: lower the learning rates or check the "
                 "data for NaN/Inf"
             )
+        self.calibrate()
         try:
             self._write_checkpoint()
         except OSError as error:

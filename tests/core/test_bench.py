@@ -8,7 +8,7 @@ import register_backbone  # registers "voxel-grid"
 import torch
 
 from mono_hdr_plugin.apps.bench import runs
-from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves
+from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves, gt_max_fall, scale_spread
 from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig, best_recipes, table_variants, tuning_trials
 from mono_hdr_plugin.apps.bench.paper_report import mean_spread, ordering, orderings, seed_values, write_paper_report
 from mono_hdr_plugin.apps.bench.paper_tables import Variant
@@ -246,6 +246,28 @@ class TestBenchCurves:
         text = (tmp_path / "curves.md").read_text()
         assert "voxel-grid / hdr-gs" in text and "50.0" in text
         assert (tmp_path / "curves.png").stat().st_size > 0
+
+    def test_a_step_budget_ends_every_run_at_its_steps(self, tmp_path, steps_of_50ms, monkeypatch):
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
+        config = BenchCurvesConfig(
+            out=tmp_path, backbones=("voxel-grid",), methods=("mono",), budget_steps=6, eval_points=2, max_eval_views=1
+        )
+        row = next(iter(bench_curves(config)["rows"].values()))
+        assert [point["steps"] for point in row["curve"]] == [3, 6]
+        assert row["curve"][-1]["radiance_scale"] > 0 and row["curve"][-1]["hdr_psnr_masked"] is not None
+
+    def test_curve_summaries_by_hand(self):
+        curve = [
+            {"hdr_psnr_gt_max": 20.0, "radiance_scale": 9.0},
+            {"hdr_psnr_gt_max": 25.0, "radiance_scale": 4.0},
+            {"hdr_psnr_gt_max": 22.5, "radiance_scale": 2.0},
+            {"hdr_psnr_gt_max": 24.0, "radiance_scale": 2.1},
+        ]
+        assert gt_max_fall(curve) == pytest.approx(2.5)  # from 25 (second point) to 22.5
+        assert gt_max_fall(curve[:2]) == 0.0
+        assert scale_spread(curve) == pytest.approx(0.05)  # the second half: 2.0 and 2.1
+        assert gt_max_fall([{"hdr_psnr_gt_max": None}]) is None
 
     def test_a_row_with_its_own_threads_leaves_the_callers(self, tmp_path, steps_of_50ms, monkeypatch):
         """The sequential executor runs rows in this process: a row's --cpus-per-run must not stay

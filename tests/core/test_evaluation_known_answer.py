@@ -30,7 +30,15 @@ from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.trainer import build_trainer
 
 LN_5001 = math.log(5001.0)
-HDR_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max")
+HDR_KEYS = (
+    "hdr_psnr",
+    "hdr_ssim",
+    "hdr_psnr_gt_max",
+    "hdr_ssim_gt_max",
+    "hdr_psnr_aligned",
+    "hdr_psnr_masked",
+    "hdr_median_ratio",
+)
 
 
 def mu_law(x: np.ndarray) -> np.ndarray:
@@ -48,10 +56,52 @@ def tone_mapped_own_max(hdr: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np
     return mu_law(hdr / hdr.max()), np.round(mu_law(gt / gt.max()) * 255) / 255
 
 
-def expected_row(view, method: str, scored_hdr: bool, brightness: float = 1.0) -> dict[str, float]:
-    """The figures of one view, from the closed-form render and the view's ground truth; the LDR
-    render is scored clipped to [0, 1]."""
+def median_log_ratio(a: np.ndarray, b: np.ndarray) -> float:
+    """exp(median(log a - log b)) over the entries where both are positive."""
+    usable = (a > 0) & (b > 0)
+    return float(np.exp(np.median(np.log(a[usable]) - np.log(b[usable]))))
+
+
+def well_exposed(photo: np.ndarray) -> np.ndarray:
+    return ((photo > 0.05) & (photo < 0.95)).all(-1)
+
+
+def scale_figures(hdr: np.ndarray, gt: np.ndarray, photo: np.ndarray) -> dict[str, float]:
+    """Aligned and emitter-masked GT-max PSNR, and the median ratio, by their definitions."""
+    peaks = gt.max(-1).ravel()
+    left_out = int(np.ceil(0.001 * peaks.size))  # 256 pixels: the single brightest
+    keep = np.ones(peaks.size, bool)
+    keep[np.argsort(peaks)[-left_out:]] = False
+    keep = keep.reshape(gt.shape[:2])
+    aligned = hdr * median_log_ratio(gt[keep], hdr[keep])
+    by_gt = mu_law(gt / gt.max())
+    return {
+        "hdr_psnr_aligned": peak_signal_noise_ratio(by_gt, mu_law(np.clip(aligned / gt.max(), 0, 1)), data_range=1.0),
+        "hdr_psnr_masked": peak_signal_noise_ratio(
+            by_gt[keep], mu_law(np.clip(hdr / gt.max(), 0, 1))[keep], data_range=1.0
+        ),
+        "hdr_median_ratio": median_log_ratio(hdr[well_exposed(photo)], gt[well_exposed(photo)]),
+    }
+
+
+def expected_calibration(views, method: str) -> float:
+    """The radiance scale fitted on training `views` (all of them, whole images): the median of
+    gt / hdr over the values of pixels their photos expose well."""
+    gt, hdr = [], []
+    for view in views:
+        exposed = well_exposed(view.image.double().numpy())
+        gt.append(view.hdr.double().numpy()[exposed])
+        hdr.append(expected_render(view.camera, method)[1][exposed])
+    return median_log_ratio(np.concatenate(gt), np.concatenate(hdr))
+
+
+def expected_row(
+    view, method: str, scored_hdr: bool, brightness: float = 1.0, radiance_scale: float = 1.0
+) -> dict[str, float]:
+    """The figures of one view, from the closed-form render (its HDR times `radiance_scale`) and the
+    view's ground truth; the LDR render is scored clipped to [0, 1]."""
     ldr, hdr = expected_render(view.camera, method, brightness)
+    hdr = hdr * radiance_scale
     ldr = np.clip(ldr, 0.0, 1.0)
     photo = view.image.double().numpy()
     row = {"ldr_psnr": peak_signal_noise_ratio(photo, ldr, data_range=1.0), "ldr_ssim": ssim_3dgs(ldr, photo)}
@@ -64,6 +114,7 @@ def expected_row(view, method: str, scored_hdr: bool, brightness: float = 1.0) -
             hdr_ssim=ssim_3dgs(own_pred, own_gt),
             hdr_psnr_gt_max=peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0),
             hdr_ssim_gt_max=ssim_3dgs(by_gt_pred, by_gt_gt),
+            **scale_figures(hdr, gt, photo),
         )
     return row
 
@@ -294,7 +345,9 @@ class TestEvalCommandKnownAnswer:
         # the hdr-gs layout puts odd cameras in the test split; single protocol: all at t3 = 2 s
         views = [v for v in trainer.scene.test if v.view_id in (1, 3)]
         assert [(v.view_id, v.exposure) for v in views] == [(1, 2.0), (3, 2.0)]
-        expected = [expected_row(v, "mono", scored_hdr=True) for v in views]
+        scale = expected_calibration(trainer.scene.train, "mono")
+        assert abs(math.log(scale)) > 0.5  # the ground truth is 3-8x the render: the calibration must show
+        expected = [expected_row(v, "mono", scored_hdr=True, radiance_scale=scale) for v in views]
         for metrics in (trained, evaluated):
             assert [row["view"] for row in metrics["views"]] == [v.stem for v in views]
             for row, want in zip(metrics["views"], expected):
@@ -303,4 +356,6 @@ class TestEvalCommandKnownAnswer:
             for key in ("ldr_psnr", "ldr_ssim", *HDR_KEYS):
                 assert metrics[key] == pytest.approx(mean(w[key] for w in expected), rel=2e-5), key
             assert metrics["test_views"] == 2
+            assert metrics["radiance_scale"] == pytest.approx(scale, rel=1e-5)
+            assert metrics["radiance_units"] == "ground_truth"
         assert evaluated["steps"] == 0

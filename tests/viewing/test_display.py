@@ -1,7 +1,5 @@
 """Display curves, exposure and tone mapping, against hand-computed values and the HDR metric."""
 
-import math
-
 import pytest
 import torch
 
@@ -9,7 +7,7 @@ from mono_hdr_plugin.apps.display import aces_filmic, colour_depth, exposed_hdr,
 from mono_hdr_plugin.core.colour import srgb_decode, srgb_encode
 from mono_hdr_plugin.core.exposure import choose_reference
 from mono_hdr_plugin.core.metrics import normalise_hdr
-from mono_hdr_plugin.training.frames import ExposureModel, fit_display_scale
+from mono_hdr_plugin.training.frames import ExposureModel
 from mono_hdr_plugin.training.pipeline import Frame
 
 MONO = ExposureModel(reference_exposure=2.0, display_scale=0.25, renders_any_exposure=False, ldr_exposures=(2.0,))
@@ -75,18 +73,6 @@ class TestExposure:
     def test_unknown_output_is_named(self):
         with pytest.raises(ValueError, match="'hdr-lin'"):
             to_display(frame(), "hdr-lin", 2.0, MONO)
-
-
-class TestDisplayScale:
-    def test_recovers_the_scale_of_an_srgb_camera(self):
-        hdr = torch.rand(4000) * 10.0
-        ldr = srgb_encode(0.3 * hdr)  # many values clip at 1: the fit must ignore them
-        assert fit_display_scale(ldr, hdr) == pytest.approx(0.3, rel=1e-4)
-
-    def test_all_clipped_falls_back_to_mid_grey(self):
-        hdr = torch.full((100,), 4.0)
-        assert fit_display_scale(torch.ones(100), hdr) == pytest.approx(0.18 / 4.0)
-        assert math.isfinite(fit_display_scale(torch.ones(10), torch.zeros(10)))
 
 
 class TestDepth:

@@ -22,6 +22,7 @@ from mono_hdr_plugin.apps.export import (
     points_from_depth,
     write_point_cloud,
 )
+from mono_hdr_plugin.core.calibration import RadianceCalibration
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.training.pipeline import Pipeline
 
@@ -58,13 +59,16 @@ class TestSplatExport:
         loaded.load_gaussians(load_ply(path))
         loaded.active_sh_degree = loaded.config.sh_degree  # a PLY holds every SH band; viewers evaluate them all
         method = load_converters(path)
+        info = json.loads(description.read_text())
+        pipeline = Pipeline("gs", loaded.eval(), method)
+        pipeline.calibration = RadianceCalibration.from_state(info["radiance_calibration"])
+        assert pipeline.calibration == gaussians.pipeline.calibration and pipeline.calibration.fitted
         for view in voxel_scene.test:
             original = gaussians.pipeline.render(view.camera, 0.5)
-            again = Pipeline("gs", loaded.eval(), method).render(view.camera, 0.5)
+            again = pipeline.render(view.camera, 0.5)
             torch.testing.assert_close(again.hdr, original.hdr, rtol=1e-5, atol=1e-6)
             torch.testing.assert_close(again.ldr, original.ldr, rtol=1e-5, atol=1e-6)
 
-        info = json.loads(description.read_text())
         assert info["method"] == gaussians.method.config.method and info["ply"] == "model.ply"
         assert info["display_scale"] == pytest.approx(gaussians.exposure.display_scale)
         with np.load(weights) as arrays:

@@ -1,0 +1,111 @@
+"""Fitting a trained model's radiance scale on its training views (the estimator: core.calibration).
+
+The trainer refits it before every evaluation and checkpoint, so a saved model's HDR is always in
+the capture's units; `load_trained_model` fits one for a checkpoint written before it existed.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from mono_hdr_plugin.core.calibration import RadianceCalibration, fit_scale
+from mono_hdr_plugin.core.exposure import decode, srgb_response
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.training.pipeline import Pipeline
+
+CALIBRATION_VIEWS = 8
+"""Training views the scale is fitted on, spread over the capture."""
+RAYS_PER_VIEW = 4096
+"""Pixels sampled per view from a ray-based backbone (one that renders pixel batches): a full-size
+render of every calibration view would cost as much as an evaluation."""
+
+
+@dataclass
+class TrainingSamples:
+    """Pixels of one training view: the model's calibrated HDR [N, 3], the photo [N, 3], the HDR
+    ground truth [N, 3] (None where the view has none), and the view's exposure in seconds."""
+
+    hdr: Tensor
+    photo: Tensor
+    truth: Tensor | None
+    exposure: float
+
+
+@torch.no_grad()
+def training_samples(pipeline: Pipeline, scene: SceneData) -> list[TrainingSamples]:
+    """Rendered pixels of up to CALIBRATION_VIEWS training views, the same pixels at every call
+    (so a refit moves with the model only)."""
+    generator = torch.Generator().manual_seed(0)
+    samples = []
+    with pipeline.evaluating():
+        for index in calibration_views(scene):
+            view = scene.train[index]
+            hdr, rows, cols = _render_pixels(pipeline, view, generator)
+            truth = None if view.hdr is None else view.hdr[rows, cols]
+            samples.append(TrainingSamples(hdr, view.image[rows, cols], truth, _exposure(pipeline, scene, index)))
+    return samples
+
+
+def fit_radiance_calibration(pipeline: Pipeline, scene: SceneData, step: int | None = None) -> RadianceCalibration:
+    """The radiance calibration of `pipeline` trained on `scene`: in the units of the training views'
+    HDR ground truth where they have some, else in those their exposure times define."""
+    samples = training_samples(pipeline, scene)
+    with_truth = [sample for sample in samples if sample.truth is not None]
+    if with_truth:
+        units, targets = "ground_truth", [sample.truth for sample in with_truth]
+    else:
+        units, response = _exposure_units(scene), _response(pipeline, scene)
+        targets = [decode(sample.photo, response) / sample.exposure for sample in samples]
+    used = with_truth or samples
+    scale, count = fit_scale(
+        torch.cat(targets),
+        torch.cat([sample.hdr for sample in used]) / pipeline.calibration.scale,  # the method's own scale
+        torch.cat([sample.photo for sample in used]),
+    )
+    if count == 0:
+        return RadianceCalibration(step=step)
+    return RadianceCalibration(scale=scale, units=units, samples=count, step=step)
+
+
+def calibration_views(scene: SceneData) -> list[int]:
+    """Up to CALIBRATION_VIEWS training views, evenly spread."""
+    count = len(scene.train)
+    picks = min(count, CALIBRATION_VIEWS)
+    return sorted({round(i * (count - 1) / max(picks - 1, 1)) for i in range(picks)})
+
+
+def _render_pixels(pipeline: Pipeline, view: View, generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+    """HDR [N, 3] of a training view and the rows / cols of its pixels: the whole image from a
+    backbone that renders whole images, RAYS_PER_VIEW random pixels from a ray-based one."""
+    camera = view.camera
+    if pipeline.backbone.pixel_batch is None:
+        frame = pipeline.render(camera, view.exposure)
+        rows, cols = torch.meshgrid(torch.arange(camera.height), torch.arange(camera.width), indexing="ij")
+        return frame.hdr.reshape(-1, 3), rows.reshape(-1), cols.reshape(-1)
+    pixels = camera.height * camera.width
+    flat = torch.randperm(pixels, generator=generator)[:RAYS_PER_VIEW]
+    rows, cols = flat // camera.width, flat % camera.width
+    centres = torch.stack([cols.float() + 0.5, rows.float() + 0.5], -1)
+    return pipeline.render(camera.with_pixels(centres), view.exposure).hdr, rows, cols
+
+
+def _exposure_units(scene: SceneData) -> str:
+    return "reference_exposure" if scene.metadata.get("unknown_exposures") else "exposure_seconds"
+
+
+def _response(pipeline: Pipeline, scene: SceneData) -> Tensor:
+    """The camera response table [256, 3] training used: the per-view exposure model's, else the
+    capture's (process-data's camera_response.json), else sRGB."""
+    if pipeline.exposures is not None:
+        return pipeline.exposures.response
+    response = scene.metadata.get("camera_response")
+    return torch.as_tensor(np.asarray(response) if response is not None else srgb_response(), dtype=torch.float32)
+
+
+def _exposure(pipeline: Pipeline, scene: SceneData, index: int) -> float:
+    """Training view `index`'s exposure in seconds as the model sees it (learned where it is learned)."""
+    if pipeline.exposures is None:
+        return scene.train[index].exposure
+    return float(pipeline.exposures.reference_exposure * pipeline.exposures.relative_exposures()[index])

@@ -1,0 +1,196 @@
+"""The radiance calibration: its estimator, its fit on training views, where it is stored, and the
+display it sets. Scenes are built on the known render (known_render.py), whose HDR is a closed form,
+so every expected scale is a number chosen here."""
+
+import math
+
+import pytest
+import torch
+from known_render import KnownRenderConfig, camera_at, expected_render, zero_method
+
+from mono_hdr_plugin.apps.display import to_display
+from mono_hdr_plugin.core.calibration import MIN_SAMPLES, RadianceCalibration, fit_scale, median_log_ratio
+from mono_hdr_plugin.core.colour import srgb_encode
+from mono_hdr_plugin.core.metrics import aligning_scale, emitter_mask
+from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method
+from mono_hdr_plugin.training.calibration import calibration_views, fit_radiance_calibration
+from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.frames import calibrate
+from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.trained import load_trained_model
+from mono_hdr_plugin.training.trainer import Trainer
+
+TRUTH_FACTOR = 6.5
+"""The ground truth is this times the known render's HDR."""
+PHOTO_FACTOR = 0.4
+"""The photos are srgb(this x the known HDR x t / reference exposure): what the display must fit."""
+
+
+def model_hdr(camera) -> torch.Tensor:
+    return torch.from_numpy(expected_render(camera, "mono")[1]).float()
+
+
+def known_view(x: float, view_id: int, exposure: float, with_truth: bool, reference: float = 2.0) -> View:
+    camera = camera_at(x)
+    hdr = model_hdr(camera)
+    photo = srgb_encode(PHOTO_FACTOR * hdr * exposure / reference).clamp(0.0, 1.0)
+    return View(camera, photo, exposure, view_id, f"cam{view_id}", TRUTH_FACTOR * hdr if with_truth else None)
+
+
+def known_scene(with_truth: bool = True, exposures=(2.0, 2.0, 2.0, 0.5, 8.0)) -> SceneData:
+    train = [known_view(-1.0 + 0.6 * i, i, t, with_truth) for i, t in enumerate(exposures)]
+    test = [known_view(0.3, 10, 2.0, with_truth)]
+    return SceneData("known-calibration", train, test, torch.full((3,), -4.0), torch.full((3,), 4.0))
+
+
+def known_pipeline(scene: SceneData) -> Pipeline:
+    pipeline = Pipeline.create("known-render", KnownRenderConfig(), MethodConfig(method="mono"), scene.scene_info())
+    zero_method(pipeline)
+    return pipeline.eval()
+
+
+class TestRadianceCalibration:
+    def test_state_round_trip(self):
+        calibration = RadianceCalibration(2.5, "ground_truth", 100, 7)
+        assert RadianceCalibration.from_state(calibration.state()) == calibration
+        assert not RadianceCalibration().fitted and calibration.fitted
+
+    @pytest.mark.parametrize("scale", [0.0, -1.0, math.nan, math.inf])
+    def test_a_scale_must_be_positive_and_finite(self, scale):
+        with pytest.raises(ValueError, match="positive"):
+            RadianceCalibration(scale, "ground_truth")
+
+    def test_units_are_checked(self):
+        with pytest.raises(ValueError, match="unknown radiance units 'nits'"):
+            RadianceCalibration(1.0, "nits")  # type: ignore[arg-type]
+
+
+class TestFitScale:
+    def test_recovers_a_known_factor_ignoring_clipped_pixels(self):
+        generator = torch.Generator().manual_seed(0)
+        prediction = torch.rand(4000, 3, generator=generator) * 10 + 0.01
+        target = 0.3 * prediction
+        photo = srgb_encode(target).clamp(0, 1)  # a third of the pixels clip
+        target[photo.amax(-1) >= 1.0] *= 50.0  # whatever the clipped pixels say must not count
+        scale, count = fit_scale(target, prediction, photo)
+        assert scale == pytest.approx(0.3, rel=1e-6)  # float32 ratios
+        assert MIN_SAMPLES <= count < 4000 * 3
+
+    def test_too_few_well_exposed_pixels_falls_back_to_every_pixel(self):
+        prediction = torch.full((100, 3), 2.0)
+        scale, count = fit_scale(4.0 * prediction, prediction, torch.ones(100, 3))
+        assert (scale, count) == (pytest.approx(4.0), 300)
+
+    def test_median_of_log_ratios_by_hand(self):
+        # ratios 1, 2, 8, 16 (and a zero that does not count): median of the logs = log(sqrt(2 * 8)) = log 4
+        target = torch.tensor([1.0, 2.0, 8.0, 16.0, 0.0])
+        scale, count = median_log_ratio(target, torch.ones(5))
+        assert (scale, count) == (pytest.approx(4.0), 4)
+
+
+class TestHdrScores:
+    def test_emitter_mask_leaves_out_the_brightest_tenth_of_a_percent(self):
+        gt = torch.ones(40, 50, 3)  # 2000 pixels: 2 left out
+        gt[3, 4, 1], gt[30, 40, 0], gt[0, 0] = 900.0, 500.0, 2.0
+        keep = emitter_mask(gt)
+        assert keep.sum() == 1998 and not keep[3, 4] and not keep[30, 40] and keep[0, 0]
+
+    def test_aligning_scale_ignores_the_emitters(self):
+        gt = torch.ones(40, 50, 3)
+        gt[3, 4] = 1e4
+        prediction = gt / 3.0
+        prediction[3, 4] = 1.0  # a missed light: it must not pull the scale
+        assert aligning_scale(prediction, gt) == pytest.approx(3.0)
+
+
+class TestFitRadianceCalibration:
+    def test_ground_truth_units_recover_the_truths_factor(self):
+        scene = known_scene()
+        calibration = fit_radiance_calibration(known_pipeline(scene), scene, step=5)
+        assert calibration.units == "ground_truth" and calibration.step == 5
+        assert calibration.scale == pytest.approx(TRUTH_FACTOR, rel=1e-5)
+
+    def test_a_model_whose_hdr_is_off_by_a_factor_is_calibrated_back(self):
+        scene = known_scene()
+        pipeline = known_pipeline(scene)
+        pipeline.calibration = RadianceCalibration(0.01, "ground_truth")  # a stale scale: the refit must undo it
+        pipeline.calibration = fit_radiance_calibration(pipeline, scene)
+        view = scene.test[0]
+        torch.testing.assert_close(pipeline.render(view.camera, 2.0).hdr, view.hdr, rtol=1e-5, atol=1e-6)
+
+    def test_without_ground_truth_the_units_are_the_exposure_times(self):
+        scene = known_scene(with_truth=False)
+        calibration = fit_radiance_calibration(known_pipeline(scene), scene)
+        # photo = srgb(0.4 h t / 2): radiance x t through the response is 0.2 h t, so the scale is 0.2
+        assert calibration.units == "exposure_seconds"
+        assert calibration.scale == pytest.approx(PHOTO_FACTOR / 2.0, rel=5e-3)  # sRGB as a 256-entry table
+
+    def test_a_ray_backbone_is_sampled_and_agrees(self):
+        scene = known_scene()
+        pipeline = known_pipeline(scene)
+        pipeline.backbone.pixel_batch = 64  # as a NeRF: calibration renders sampled rays, not whole views
+        pipeline.backbone.render_chunk = 50
+        assert fit_radiance_calibration(pipeline, scene).scale == pytest.approx(TRUTH_FACTOR, rel=1e-5)
+
+    def test_views_are_spread_over_the_capture(self):
+        assert calibration_views(known_scene(exposures=(2.0,) * 3)) == [0, 1, 2]
+        assert calibration_views(known_scene(exposures=(2.0,) * 15)) == [0, 2, 4, 6, 8, 10, 12, 14]
+
+
+class TestDisplayAtEv0:
+    def test_the_hdr_display_at_a_training_view_is_its_photo(self):
+        """At EV 0 (the reference exposure) and at another view's exposure, the HDR through the display
+        curve is the dataset's photo: the display scale is fitted on the photos, not on the LDR branch."""
+        scene = known_scene()
+        pipeline = known_pipeline(scene)
+        pipeline.calibration = fit_radiance_calibration(pipeline, scene)
+        model = calibrate(pipeline, scene)
+        assert model.reference_exposure == 2.0
+        assert model.display_scale == pytest.approx(PHOTO_FACTOR / TRUTH_FACTOR, rel=1e-5)
+        for view in (scene.train[0], scene.train[3]):  # EV 0, and two stops under
+            frame = pipeline.render(view.camera, view.exposure)
+            shown = to_display(frame, "hdr-srgb", view.exposure, model)
+            assert (shown - view.image).abs().max() < 1e-4
+
+
+class TestStoredWithTheModel:
+    def test_checkpoint_round_trip_and_a_checkpoint_from_before(self, tmp_path):
+        scene = known_scene()
+        config = train_config_for(KnownRenderConfig)(
+            backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=True, max_steps=2, save_renders=False
+        )
+        trainer = Trainer(config, "known-render", scene)
+        zero_method(trainer.pipeline)
+        trainer.hdr_views = [False] * len(scene.train)  # no training signal: the converters stay zero
+        trainer.train()
+        saved = trainer.pipeline.calibration
+        assert saved.fitted and saved.step == 2
+        assert load_trained_model(trainer.checkpoint_path(), scene=scene).pipeline.calibration == saved
+
+        payload = torch.load(trainer.checkpoint_path(), weights_only=True)
+        del payload["pipeline"]["_extra_state"]  # as written before calibration existed
+        torch.save(payload, trainer.checkpoint_path())
+        refitted = load_trained_model(trainer.checkpoint_path(), scene=scene).pipeline.calibration
+        assert refitted.units == "ground_truth" and refitted.scale == pytest.approx(saved.scale, rel=1e-6)
+
+
+class TestScaleAnchor:
+    def test_the_anchor_sees_the_level_that_l_hdr_cannot(self):
+        method = build_method(MethodConfig(method="mono", hdr_scale_anchor=0.5), "mse")
+        truth = torch.rand(8, 8, 3) * 4 + 0.1
+        photo = torch.rand(8, 8, 3)
+
+        def terms(prediction):
+            return method.losses(MethodOutput(ldr=photo, hdr=prediction), Targets(photo, 1.0, truth), step=0)
+
+        assert terms(truth)["hdr_anchor"] == 0.0
+        doubled = terms(2.0 * truth)
+        assert doubled["hdr"] == 0.0  # L_hdr divides each image by its own maximum: blind to the level
+        assert doubled["hdr_anchor"] > 1e-3
+
+    def test_off_by_default(self):
+        method = build_method(MethodConfig(method="mono"), "mse")
+        truth = torch.rand(8, 8, 3) + 0.1
+        output = MethodOutput(ldr=torch.rand(8, 8, 3), hdr=2 * truth)
+        assert "hdr_anchor" not in method.losses(output, Targets(output.ldr, 1.0, truth), step=0)
