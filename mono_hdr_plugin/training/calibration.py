@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mono_hdr_plugin.core.calibration import RadianceCalibration, fit_scale
+from mono_hdr_plugin.core.calibration import RadianceCalibration, Units, fit_scale
 from mono_hdr_plugin.core.exposure import decode, srgb_response
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.training.pipeline import Pipeline
@@ -53,8 +53,9 @@ def fit_radiance_calibration(pipeline: Pipeline, scene: SceneData, step: int | N
     HDR ground truth where they have some, else in those their exposure times define."""
     samples = training_samples(pipeline, scene)
     with_truth = [sample for sample in samples if sample.truth is not None]
+    units: Units
     if with_truth:
-        units, targets = "ground_truth", [sample.truth for sample in with_truth]
+        units, targets = "ground_truth", [sample.truth for sample in with_truth if sample.truth is not None]
     else:
         units, response = _exposure_units(scene), _response(pipeline, scene)
         targets = [decode(sample.photo, response) / sample.exposure for sample in samples]
@@ -91,7 +92,7 @@ def _render_pixels(pipeline: Pipeline, view: View, generator: torch.Generator) -
     return pipeline.render(camera.with_pixels(centres), view.exposure).hdr, rows, cols
 
 
-def _exposure_units(scene: SceneData) -> str:
+def _exposure_units(scene: SceneData) -> Units:
     return "reference_exposure" if scene.metadata.get("unknown_exposures") else "exposure_seconds"
 
 

@@ -125,17 +125,18 @@ def write_curves_report(store: RowStore, out: Path) -> None:
 
 def gt_max_fall(curve: list[dict]) -> float | None:
     """The largest drop of the GT-max HDR PSNR below its best earlier value (0: it never fell)."""
-    values = [point.get("hdr_psnr_gt_max") for point in curve]
-    if any(value is None for value in values):
+    if any(point.get("hdr_psnr_gt_max") is None for point in curve):
         return None
+    values: list[float] = [point["hdr_psnr_gt_max"] for point in curve]
     return max((max(values[: i + 1]) - value for i, value in enumerate(values)), default=0.0)
 
 
 def scale_spread(curve: list[dict]) -> float | None:
     """max / min - 1 of the radiance scales fitted over the second half of the curve's evaluations."""
-    scales = [point.get("radiance_scale") for point in curve[len(curve) // 2 :]]
-    if not scales or any(scale is None for scale in scales):
+    half = curve[len(curve) // 2 :]
+    if not half or any(point.get("radiance_scale") is None for point in half):
         return None
+    scales: list[float] = [point["radiance_scale"] for point in half]
     return max(scales) / min(scales) - 1.0
 
 
