@@ -6,6 +6,7 @@ import contextlib
 import math
 import signal
 import threading
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,7 +42,11 @@ class TrainingHook:
 
 
 class ProgressBar(TrainingHook):
-    """A rich progress bar with the loss and the training-view LDR PSNR."""
+    """A rich progress bar with the loss and the training-view LDR PSNR; where the output is not a
+    terminal (a log file, CI), where rich would draw nothing until the end, a plain line every
+    LOG_EVERY_SECONDS instead."""
+
+    LOG_EVERY_SECONDS = 30.0
 
     def on_start(self, trainer: Trainer) -> None:
         self.progress = Progress(
@@ -59,12 +64,22 @@ class ProgressBar(TrainingHook):
             loss=math.nan,
             psnr=math.nan,
         )
-        self.progress.start()
+        self.logged_at = time.monotonic()
+        if console.is_terminal:
+            self.progress.start()
+        else:
+            console.print(f"training {trainer.backbone_name}/{trainer.pipeline.method_name} from step {trainer.step}")
 
     def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
         self.progress.update(
             self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"], psnr=record["ldr_psnr"]
         )
+        if not console.is_terminal and time.monotonic() - self.logged_at >= self.LOG_EVERY_SECONDS:
+            self.logged_at = time.monotonic()
+            console.print(
+                f"step {trainer.step}/{trainer.run_length}: loss {record['loss']:.4f}, "
+                f"LDR PSNR {record['ldr_psnr']:.2f} dB, {trainer.train_seconds:.0f} s"
+            )
 
     def on_end(self, trainer: Trainer) -> None:
         self.progress.stop()
