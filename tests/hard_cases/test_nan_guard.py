@@ -75,7 +75,8 @@ def test_diverged_run_keeps_last_good_checkpoint_loadable_and_resumable(tmp_path
     payload = load_checkpoint(trainer.checkpoint_path())
     assert payload["step"] == 10  # the last multiple of checkpoint_every before the failures
     for name, tensor in payload["pipeline"].items():
-        assert torch.isfinite(tensor).all(), name
+        if isinstance(tensor, torch.Tensor):  # not the extra state (the radiance calibration)
+            assert torch.isfinite(tensor).all(), name
     config = trainer.config
     config.resume = True
     resumed = build_trainer(config, "voxel-grid", scene)

@@ -393,9 +393,7 @@ def lines_up(darker: np.ndarray, brighter: np.ndarray, response: np.ndarray | No
     above_black = (darker > DARK_FLOOR).all(-1)
     if (well_exposed & above_black).sum() < MIN_SHARED_PIXELS:
         return True
-    log_dark, log_bright = (
-        np.log(np.clip(linearise(image, response).mean(-1), 1e-6, None)) for image in (darker, brighter)
-    )
+    log_dark, log_bright = (np.log(np.clip(linearise(x, response).mean(-1), 1e-6, None)) for x in (darker, brighter))
     spread = partial(_ratio_spread, log_dark, log_bright, np.asarray(above_black), np.asarray(well_exposed))
     here = spread(0, 0)
     directions = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
