@@ -7,10 +7,11 @@
    units; a test view's calibrated HDR is compared with a bracket merge of that view's own photos
    at every exposure the scene has (colour-hdri's merge, the sRGB response the studio's `demo`
    camera uses), as the median ratio over pixels the training-exposure photo exposes well.
-2. The anchoring loss against the post-hoc fit: the same runs with ground truth, with
-   `--hdr-scale-anchor` 0 (the paper's recipe, calibrated after the fact) and 0.5. With the anchor
-   the fitted scale should stay near 1 (training itself sets the level); the scores say whether
-   anchoring costs or gains anything.
+2. The anchoring loss against the post-hoc fit: runs with ground truth and `--hdr-scale-anchor`
+   0.5, beside the same runs without it (the paper's recipe, calibrated after the fact), read from
+   OUT/curves_<backbone>/curves.json (`mono-hdr bench curves` with the same steps, seed and scene;
+   fixed-step runs are deterministic). With the anchor the fitted scale should stay near 1
+   (training itself sets the level); the scores say whether anchoring costs or gains anything.
 
 Every run: one seed, exposure t3, the backbone's default preset, a fixed number of steps (STEPS:
 about 100 s on the quiet 2-core machine; steps, so that the figures do not depend on its load),
@@ -18,6 +19,7 @@ about 100 s on the quiet 2-core machine; steps, so that the figures do not depen
 """
 
 import dataclasses
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -37,7 +39,7 @@ from mono_hdr_plugin.data.photos.brackets import merge_bracket
 BACKBONES = ("gs", "nerf")
 STEPS = {"gs": 2000, "nerf": 1200}
 MERGE_VIEWS = 4
-ANCHORS = (0.0, 0.5)
+ANCHOR = 0.5
 
 
 def median_ratio(prediction: torch.Tensor, reference: torch.Tensor, photo: torch.Tensor) -> float:
@@ -97,6 +99,20 @@ def anchored_run(backbone: str, scene_name: str, anchor: float, budget: RunBudge
     return {"backbone": backbone, "anchor": anchor, "steps": trainer.step, "curve": curve.curve}
 
 
+def post_hoc_rows(out: Path, scene: str) -> list[dict[str, Any]]:
+    """The runs without the anchor, from `bench curves` in OUT/curves_<backbone> (none when absent)."""
+    rows = []
+    for backbone in BACKBONES:
+        path = out / f"curves_{backbone}" / "curves.json"
+        if not path.is_file():
+            continue
+        for row in json.loads(path.read_text())["rows"].values():
+            if row["status"] == "ok" and row["spec"]["scene"] == scene and not row["spec"]["overrides"]:
+                final_steps = row["final"]["steps"]
+                rows.append({"backbone": backbone, "anchor": 0.0, "steps": final_steps, "curve": row["curve"]})
+    return rows
+
+
 def write_report(results: dict[str, Any], path: Path) -> None:
     lines = [
         "# Radiance calibration: units without ground truth, and the anchoring loss",
@@ -151,7 +167,10 @@ def main() -> None:
         "steps": STEPS,
         "command": f"python benchmarks/calibration.py --scene {args.scene}",
         "units": [units_against_brackets(b, args.scene, budget, out / "runs") for b in BACKBONES],
-        "anchor": [anchored_run(b, args.scene, a, budget, out / "runs") for b in BACKBONES for a in ANCHORS],
+        "anchor": [
+            *post_hoc_rows(out, args.scene),
+            *(anchored_run(b, args.scene, ANCHOR, budget, out / "runs") for b in BACKBONES),
+        ],
     }
     write_json(out / "calibration.json", results)
     write_report(results, out / "calibration.md")
