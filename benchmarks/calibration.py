@@ -99,10 +99,10 @@ def anchored_run(backbone: str, scene_name: str, anchor: float, budget: RunBudge
     return {"backbone": backbone, "anchor": anchor, "steps": trainer.step, "curve": curve.curve}
 
 
-def post_hoc_rows(out: Path, scene: str) -> list[dict[str, Any]]:
+def post_hoc_rows(out: Path, scene: str, backbones: list[str]) -> list[dict[str, Any]]:
     """The runs without the anchor, from `bench curves` in OUT/curves_<backbone> (none when absent)."""
     rows = []
-    for backbone in BACKBONES:
+    for backbone in backbones:
         path = out / f"curves_{backbone}" / "curves.json"
         if not path.is_file():
             continue
@@ -155,6 +155,7 @@ def main() -> None:
     parser = args_of.script_parser(__doc__)
     args_of.add_out(parser, Path("benchmarks/results/calibration"))
     args_of.add_scenes(parser, "demo")
+    parser.add_argument("--backbones", nargs="+", default=list(BACKBONES), choices=BACKBONES)
     args_of.add_count(parser, "--eval-points", 4, help="evaluations along each run")
     args_of.add_count(parser, "--max-eval-views", 8, help="test views per evaluation")
     args = parser.parse_args()
@@ -165,11 +166,11 @@ def main() -> None:
         "facts": run_facts(),
         "scene": args.scene,
         "steps": STEPS,
-        "command": f"python benchmarks/calibration.py --scene {args.scene}",
-        "units": [units_against_brackets(b, args.scene, budget, out / "runs") for b in BACKBONES],
+        "command": f"python benchmarks/calibration.py --scene {args.scene} --backbones {' '.join(args.backbones)}",
+        "units": [units_against_brackets(b, args.scene, budget, out / "runs") for b in args.backbones],
         "anchor": [
-            *post_hoc_rows(out, args.scene),
-            *(anchored_run(b, args.scene, ANCHOR, budget, out / "runs") for b in BACKBONES),
+            *post_hoc_rows(out, args.scene, args.backbones),
+            *(anchored_run(b, args.scene, ANCHOR, budget, out / "runs") for b in args.backbones),
         ],
     }
     write_json(out / "calibration.json", results)
