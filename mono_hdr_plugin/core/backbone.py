@@ -53,6 +53,10 @@ class SceneInfo:
     train_cameras: list[Camera]
     points: Tensor | None = None
     point_colors: Tensor | None = None
+    unbounded: bool = False
+    """Whether the scene reaches to infinity (open sky, a distant horizon): backbones then add what lies
+    at infinity (3DGS an environment map, NeRF a contracted space and a background) unless their
+    flags say otherwise. The data sets it (docs/outdoor.md says how it is decided)."""
 
     @property
     def center(self) -> Tensor:

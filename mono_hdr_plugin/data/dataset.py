@@ -147,4 +147,5 @@ class SceneData:
             train_cameras=[v.camera for v in self.train],
             points=self.points,
             point_colors=self.point_colors,
+            unbounded=bool(self.metadata.get("unbounded", False)),
         )
