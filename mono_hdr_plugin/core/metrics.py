@@ -19,6 +19,11 @@ from mono_hdr_plugin.core.calibration import median_log_ratio, well_exposed
 MU = 5000.0
 EMITTER_FRACTION = 0.001
 """The emitter-masked HDR PSNR leaves out this fraction of pixels: the ground truth's brightest."""
+SOURCE_LEVEL = 0.5
+"""A light source (the sun, a bulb) is where the ground truth's brightest channel reaches this fraction of
+its maximum."""
+CHROMA_BOUND = 0.05
+"""A pixel's colour is wrong (a coloured floater) when its chromaticity is off by more than this."""
 SSIM_SIGMA = 1.5
 SSIM_RADIUS = 5  # scikit-image: int(truncate * sigma + 0.5) with truncate = 3.5
 
@@ -153,6 +158,40 @@ def hdr_scale_metrics(pred_hdr: Tensor, gt_hdr: Tensor, photo: Tensor) -> dict[s
         "hdr_psnr_masked": psnr(normalise_hdr(pred_hdr, gt_max)[keep], gt[keep]),
         "hdr_median_ratio": ratio if count else math.nan,
     }
+
+
+def source_region(gt_hdr: Tensor) -> Tensor:
+    """[H, W] True where the ground truth's brightest channel reaches SOURCE_LEVEL x its maximum,
+    grown by one pixel, so a source rendered one pixel off still counts as found."""
+    peaks = gt_hdr.amax(-1)
+    region = (peaks >= SOURCE_LEVEL * peaks.max()).float()[None, None]
+    return F.max_pool2d(region, kernel_size=3, stride=1, padding=1)[0, 0] > 0
+
+
+def source_metrics(pred_hdr: Tensor, gt_hdr: Tensor, pred_ldr: Tensor, photo: Tensor) -> dict[str, float]:
+    """Whether the brightest source of the view survives, read on `source_region`:
+
+    hdr_peak_ratio: the prediction's brightest channel there, at its maximum, over the ground truth's
+        maximum (1: the peak is right; 2 or 0.5 is a factor of 2 off; near 0: the source is lost);
+    ldr_peak_ratio: the same for the LDR render against the photo (a clipped sun drawn clipped: 1).
+    """
+    region = source_region(gt_hdr)
+    hdr = float(pred_hdr.amax(-1)[region].max() / gt_hdr.amax(-1).max().clamp_min(1e-12))
+    ldr = float(pred_ldr.amax(-1)[region].max() / photo.amax(-1)[region].max().clamp_min(1e-12))
+    return {"hdr_peak_ratio": hdr, "ldr_peak_ratio": ldr}
+
+
+def chroma_outliers(pred_hdr: Tensor, gt_hdr: Tensor) -> float:
+    """Fraction of pixels whose chromaticity (r, g, b) / (r + g + b) is off by more than CHROMA_BOUND in
+    any channel: coloured floaters, sky painted onto the foreground. Chromaticity ignores the level,
+    so the score needs no calibration. Pixels darker than 5 % of the ground truth's median (whose
+    colour is noise) do not count."""
+    gt_sum, pred_sum = gt_hdr.sum(-1), pred_hdr.sum(-1)
+    counted = (gt_sum > 0.05 * gt_sum.median()) & (gt_sum > 0)
+    gt_chroma = gt_hdr[counted] / gt_sum[counted, None]
+    pred_chroma = pred_hdr[counted] / pred_sum[counted, None].clamp_min(1e-12)
+    off = (pred_chroma - gt_chroma).abs().amax(-1) > CHROMA_BOUND
+    return float(off.double().mean()) if counted.any() else math.nan
 
 
 class LpipsUnavailable(RuntimeError):

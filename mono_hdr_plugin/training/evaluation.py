@@ -8,12 +8,14 @@ import torch
 
 from mono_hdr_plugin.core.metrics import (
     LpipsUnavailable,
+    chroma_outliers,
     hdr_metrics,
     hdr_scale_metrics,
     load_lpips,
     lpips_distance,
     normalise_hdr,
     psnr,
+    source_metrics,
     ssim,
     tone_mapped_pair,
 )
@@ -54,6 +56,9 @@ HDR_KEYS = (
     "hdr_psnr_aligned",
     "hdr_psnr_masked",
     "hdr_median_ratio",
+    "hdr_peak_ratio",
+    "ldr_peak_ratio",
+    "chroma_outliers",
 )
 
 
@@ -90,6 +95,9 @@ def evaluate(
     for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
         values = [row[key] for row in rows if key in row and not math.isnan(row[key])]  # NaN: no pixel to score
         metrics[key] = _mean(values) if values else None
+    peaks = [row["hdr_peak_ratio"] for row in rows if "hdr_peak_ratio" in row]
+    # A mean of ratios hides a lost source behind an overshoot elsewhere: the worst view, in stops.
+    metrics["hdr_peak_ratio_worst"] = max(peaks, key=lambda r: abs(math.log(max(r, 1e-12)))) if peaks else None
     if lpips_skipped:
         metrics["lpips_skipped"] = lpips_skipped
     metrics["views"] = rows
@@ -119,6 +127,8 @@ def _score_view(
         assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
         row.update(hdr_metrics(output.hdr, view.hdr))
         row.update(hdr_scale_metrics(output.hdr, view.hdr, view.image))
+        row.update(source_metrics(output.hdr, view.hdr, ldr, view.image))
+        row["chroma_outliers"] = chroma_outliers(output.hdr, view.hdr)
         if lpips_model is not None:
             row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
         if render_dir is not None:

@@ -38,6 +38,9 @@ HDR_KEYS = (
     "hdr_psnr_aligned",
     "hdr_psnr_masked",
     "hdr_median_ratio",
+    "hdr_peak_ratio",
+    "ldr_peak_ratio",
+    "chroma_outliers",
 )
 
 
@@ -84,6 +87,30 @@ def scale_figures(hdr: np.ndarray, gt: np.ndarray, photo: np.ndarray) -> dict[st
     }
 
 
+def source_figures(hdr: np.ndarray, gt: np.ndarray, ldr: np.ndarray, photo: np.ndarray) -> dict[str, float]:
+    """Peak ratios on the ground truth's brightest pixels (>= half its max) and their 8 neighbours, and the
+    fraction of pixels (brighter than 5 % of the median sum) whose chromaticity is off by more than 0.05."""
+    bright = gt.max(-1) >= 0.5 * gt.max()
+    region = np.zeros_like(bright)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            shifted = np.zeros_like(bright)
+            h, w = bright.shape
+            shifted[max(dy, 0) : h + min(dy, 0), max(dx, 0) : w + min(dx, 0)] = bright[
+                max(-dy, 0) : h + min(-dy, 0), max(-dx, 0) : w + min(-dx, 0)
+            ]
+            region |= shifted
+    gt_sum = gt.sum(-1)
+    counted = (gt_sum > 0.05 * np.sort(gt_sum.ravel())[(gt_sum.size - 1) // 2]) & (gt_sum > 0)
+    chroma_gt = gt[counted] / gt_sum[counted, None]
+    chroma_pred = hdr[counted] / np.maximum(hdr.sum(-1)[counted, None], 1e-12)
+    return {
+        "hdr_peak_ratio": hdr.max(-1)[region].max() / gt.max(),
+        "ldr_peak_ratio": ldr.max(-1)[region].max() / photo.max(-1)[region].max(),
+        "chroma_outliers": float((np.abs(chroma_pred - chroma_gt).max(-1) > 0.05).mean()),
+    }
+
+
 def expected_calibration(views, method: str) -> float:
     """The radiance scale fitted on training `views` (all of them, whole images): the median of
     gt / hdr over the values of pixels their photos expose well."""
@@ -115,6 +142,7 @@ def expected_row(
             hdr_psnr_gt_max=peak_signal_noise_ratio(by_gt_gt, by_gt_pred, data_range=1.0),
             hdr_ssim_gt_max=ssim_3dgs(by_gt_pred, by_gt_gt),
             **scale_figures(hdr, gt, photo),
+            **source_figures(hdr, gt, ldr, photo),
         )
     return row
 
@@ -138,7 +166,8 @@ def assert_rows(
         want = expected_row(view, method, scored, brightness)
         assert row["view"] == view.stem
         assert all(type(row[key]) is float for key in want), "figures must be plain floats (JSON)"
-        assert {k for k in row if k.startswith("hdr_")} == (set(HDR_KEYS) if scored else set()), row["view"]
+        scores = {k for k in row if k not in ("view", "view_id", "exposure", "ldr_psnr", "ldr_ssim", "lpips_ldr")}
+        assert scores - {"lpips_hdr"} == (set(HDR_KEYS) if scored else set()), row["view"]
         for key, value in want.items():
             assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6), (row["view"], key)
         expected.append(want)
@@ -171,6 +200,9 @@ class TestEvaluateKnownAnswer:
         assert metrics["ldr_ssim"] == pytest.approx((ssim_half + ssim_two) / 2, rel=2e-5)
         for key in HDR_KEYS:
             assert metrics[key] == pytest.approx(mean(r[key] for r in rows if key in r), rel=2e-5), key
+        peaks = [r["hdr_peak_ratio"] for r in rows if "hdr_peak_ratio" in r]
+        worst = peaks[int(np.argmax([abs(math.log(p)) for p in peaks]))]
+        assert metrics["hdr_peak_ratio_worst"] == pytest.approx(worst, rel=2e-5)
         assert metrics["test_views"] == 4
         assert (metrics["backbone"], metrics["method"], metrics["scene"]) == ("known-render", "mono", "known-answer")
 

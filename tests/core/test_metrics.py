@@ -6,7 +6,18 @@ import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from mono_hdr_plugin.core.losses import l1_dssim_loss, mse_loss, photometric_loss
-from mono_hdr_plugin.core.metrics import hdr_metrics, mu_law, normalise_hdr, psnr, ssim, ssim_map, tone_mapped_pair
+from mono_hdr_plugin.core.metrics import (
+    chroma_outliers,
+    hdr_metrics,
+    mu_law,
+    normalise_hdr,
+    psnr,
+    source_metrics,
+    source_region,
+    ssim,
+    ssim_map,
+    tone_mapped_pair,
+)
 
 
 class TestPsnr:
@@ -127,3 +138,53 @@ class TestLpips:
         with pytest.raises(LpipsUnavailable, match="LPIPS skipped"):
             load_lpips()
         load_lpips.cache_clear()
+
+
+class TestSourceMetrics:
+    """The brightest source's peak, on a 6 x 6 view with a 1-pixel sun of 1000 on a sky of 1."""
+
+    @staticmethod
+    def sunny_view():
+        gt = torch.ones(6, 6, 3)
+        gt[2, 3] = torch.tensor([1000.0, 900.0, 800.0])
+        photo = (gt * 0.5).clamp(0, 1)
+        return gt, photo
+
+    def test_a_source_drawn_one_pixel_off_at_half_its_peak(self):
+        gt, photo = self.sunny_view()
+        pred = torch.ones(6, 6, 3)
+        pred[3, 4] = torch.tensor([500.0, 450.0, 400.0])  # diagonal neighbour: inside the grown region
+        ldr = photo.clone()
+        ldr[2, 3] = 0.5  # the LDR render lost the clipped sun: half the photo's 1.0
+        figures = source_metrics(pred, gt, ldr, photo)
+        assert figures["hdr_peak_ratio"] == pytest.approx(0.5)
+        assert figures["ldr_peak_ratio"] == pytest.approx(0.5 / 1.0)
+
+    def test_a_lost_source_scores_near_zero(self):
+        gt, photo = self.sunny_view()
+        pred = torch.ones(6, 6, 3)
+        pred[5, 0] = 1000.0  # bright, but two pixels and more away from the sun
+        assert source_metrics(pred, gt, photo, photo)["hdr_peak_ratio"] == pytest.approx(1 / 1000)
+
+    def test_the_region_holds_the_source_and_its_neighbours_only(self):
+        gt, _ = self.sunny_view()
+        region = source_region(gt)
+        assert int(region.sum()) == 9 and bool(region[1:4, 2:5].all())
+
+
+class TestChromaOutliers:
+    def test_counts_pixels_whose_colour_is_off_whatever_their_level(self):
+        gt = torch.tensor([0.2, 0.3, 0.5]).repeat(4, 5, 1)  # sky blue, 20 pixels
+        pred = 7.0 * gt  # another level, the same colour: never an outlier
+        pred[0, 0] = torch.tensor([0.3, 0.6, 0.1])  # a green floater
+        pred[1, 1] = torch.tensor([0.23, 0.3, 0.47])  # chromaticity off by 0.03: within the bound
+        pred[2, 2] = torch.tensor([0.5, 0.2, 0.3])  # magenta
+        assert chroma_outliers(pred, gt) == pytest.approx(2 / 20)
+
+    def test_pixels_too_dark_to_have_a_colour_do_not_count(self):
+        gt = torch.tensor([0.2, 0.3, 0.5]).repeat(3, 5, 1)
+        gt[0] *= 1e-3  # 5 pixels far below 5 % of the median: left out
+        pred = gt.clone()
+        pred[0] = torch.tensor([1e-3, 0.0, 0.0])  # wrong colour, but not counted
+        pred[1, 0] = torch.tensor([0.5, 0.3, 0.2])  # counted, and wrong
+        assert chroma_outliers(pred, gt) == pytest.approx(1 / 10)

@@ -93,9 +93,10 @@ def write_curves_report(store: RowStore, out: Path) -> None:
     rows = [row for row in store.rows.values() if row["status"] == "ok"]
     lines = [
         "| scene | backbone / method | steps | seconds | ms / step | HDR PSNR | HDR PSNR (GT max) | GT max, masked "
-        "| GT max, aligned | median ratio | GT max fell | scale spread | HDR SSIM | LDR PSNR | LDR SSIM | fps LDR "
+        "| GT max, aligned | median ratio | GT max fell | scale spread | peak ratio | worst peak | chroma outliers "
+        "| HDR SSIM | LDR PSNR | LDR SSIM | fps LDR "
         "| fps LDR+HDR | HDR render cost | Gaussians | peak MiB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in sorted(rows, key=lambda r: (r["spec"]["scene"], label(r["spec"]))):
         final = row["final"]
@@ -104,7 +105,9 @@ def write_curves_report(store: RowStore, out: Path) -> None:
             f"{1000 * row['mean_step_seconds']:.1f} | {fmt(final['hdr_psnr'])} | {fmt(final['hdr_psnr_gt_max'])} | "
             f"{fmt(final.get('hdr_psnr_masked'))} | {fmt(final.get('hdr_psnr_aligned'))} | "
             f"{fmt(final.get('hdr_median_ratio'), 3)} | {fmt(gt_max_fall(row['curve']))} | "
-            f"{fmt(scale_spread(row['curve']), 3)} | {fmt(final['hdr_ssim'], 3)} | {fmt(final['ldr_psnr'])} | "
+            f"{fmt(scale_spread(row['curve']), 3)} | {fmt(final.get('hdr_peak_ratio'), 2)} | "
+            f"{fmt(final.get('hdr_peak_ratio_worst'), 2)} | {fmt(final.get('chroma_outliers'), 4)} | "
+            f"{fmt(final['hdr_ssim'], 3)} | {fmt(final['ldr_psnr'])} | "
             f"{fmt(final['ldr_ssim'], 3)} | {row['fps_ldr']:.1f} | {row['fps_ldr_hdr']:.1f} | "
             f"{row['fps_ldr'] / row['fps_ldr_hdr']:.3f}x | {row['backbone_statistics'].get('gaussians', '')} | "
             f"{row['peak_memory_mib']:.0f} |"
@@ -116,6 +119,9 @@ def write_curves_report(store: RowStore, out: Path) -> None:
         "GT max fell: the largest drop of the GT-max HDR PSNR below its best earlier value along the curve (dB).",
         "Scale spread: max / min - 1 of the radiance scale fitted at the evaluations of the second half of the run.",
         "Median ratio: calibrated HDR / ground truth over pixels the test photo exposes well (1 is exact).",
+        "Peak ratio: the calibrated HDR's peak on the brightest source (sun, bulb) over the ground truth's, mean over "
+        "views; worst peak: the view farthest from 1 (near 0: the source is lost).",
+        "Chroma outliers: fraction of pixels whose chromaticity is off by more than 0.05 (coloured floaters).",
     ]
     out.mkdir(parents=True, exist_ok=True)
     (out / "curves.md").write_text("\n".join(lines) + "\n")
