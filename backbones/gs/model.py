@@ -3,7 +3,7 @@
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import torch
 import tyro
@@ -13,10 +13,17 @@ from backbones.gs._extension import load_extension
 from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import check_backend, project_gaussians, rasterize
 from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
+from backbones.gs.sky import (
+    background_rows,
+    export_environment,
+    make_environment,
+    random_points_in_view,
+    uses_environment,
+)
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
+from mono_hdr_plugin.core.validation import POSITIVE, at_least, between, one_of
 
 
 @dataclass
@@ -53,6 +60,11 @@ class GaussianConfig:
     official clone/split/prune); its settings are the --backbone.strategy.* flags."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
+    background: Literal["auto", "environment", "none"] = "auto"
+    """What lies behind the splats: "environment" (a learned map of the sky at infinity, composited
+    with the weight the splats leave), "none", or "auto" (environment iff the scene is unbounded)."""
+    lr_environment: float = 0.01
+    """Learning rate of the environment map's raw colours."""
 
     flag_rules: ClassVar = {
         "sh_degree": between(0, 3),
@@ -67,6 +79,8 @@ class GaussianConfig:
         "lr_opacities": POSITIVE,
         "lr_scales": POSITIVE,
         "lr_quats": POSITIVE,
+        "background": one_of("auto", "environment", "none"),
+        "lr_environment": POSITIVE,
     }
     """The strategy's flags follow its own table (McmcStrategy, DefaultStrategy)."""
 
@@ -114,6 +128,8 @@ class GaussianBackbone(Backbone):
         self.opacity_logits = nn.Parameter(torch.full((n,), math.log(config.init_opacity / (1 - config.init_opacity))))
         self.active_sh_degree = 0
         self.strategy_state = config.strategy.initial_state(n)
+        # an nn.Module child when used: its textures reach state_dict and stay out of density control
+        self.environment = make_environment(scene) if uses_environment(config.background, scene) else None
 
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
@@ -134,7 +150,10 @@ class GaussianBackbone(Backbone):
         low, high = scene.bounds_min.float(), scene.bounds_max.float()
         if not (high > low).all():
             raise ValueError(f"scene bounds must satisfy min < max, got {low.tolist()} and {high.tolist()}")
-        means = low + torch.rand(config.random_init_points, 3) * (high - low)
+        if scene.unbounded and scene.train_cameras:
+            means = random_points_in_view(config.random_init_points, low, high, scene.train_cameras)
+        else:
+            means = low + torch.rand(config.random_init_points, 3) * (high - low)
         return means, torch.rand(config.random_init_points, 3)
 
     @classmethod
@@ -165,7 +184,12 @@ class GaussianBackbone(Backbone):
             "quats": c.lr_quats,
             "opacity_logits": c.lr_opacities,
         }
-        return [{"name": name, "params": [getattr(self, name)], "lr": rates[name]} for name in GAUSSIAN_PARAMETERS]
+        groups = [{"name": name, "params": [getattr(self, name)], "lr": rates[name]} for name in GAUSSIAN_PARAMETERS]
+        if self.environment is not None:
+            groups.append(
+                {"name": "environment", "params": list(self.environment.parameters()), "lr": c.lr_environment}
+            )
+        return groups
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """3DGS position schedule: log-linear from lr_means to lr_means_final over the run."""
@@ -180,7 +204,9 @@ class GaussianBackbone(Backbone):
         return self.config.strategy.regularisation(self)
 
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
-        """Colours of the V Gaussians visible in `camera` ([V, 3]); `composite` takes [V, C].
+        """Colours of the V Gaussians visible in `camera` ([V, 3]), then with an environment one
+        background row per pixel ([V + H * W, 3], row-major); `composite` takes [rows, C] and adds
+        the background rows with weight 1 - alpha.
 
         extras: "projected" (the ProjectedGaussians: visible index, screen means whose gradient
         densification reads, radii), "alpha" [H, W, 1] once `composite` has run, and
@@ -202,11 +228,16 @@ class GaussianBackbone(Backbone):
             camera.center,
             backend=self.config.backend,
         )
+        visible = raw_colors.shape[0]
+        if self.environment is not None:
+            raw_colors = torch.cat([raw_colors, background_rows(self.environment, camera)])
         extras: dict[str, Any] = {"projected": projected}
 
         def composite(values: Tensor) -> Tensor:
-            """values [V, C] of the visible Gaussians -> image [H, W, C]; leaves alpha in extras."""
-            image, extras["alpha"] = rasterize(projected, values)
+            """values [rows, C] -> image [H, W, C]; leaves alpha (the Gaussians' coverage) in extras."""
+            image, extras["alpha"] = rasterize(projected, values[:visible])
+            if values.shape[0] > visible:
+                image = image + (1 - extras["alpha"]) * values[visible:].reshape(camera.height, camera.width, -1)
             return image
 
         def render_depth() -> Tensor:
@@ -238,8 +269,14 @@ class GaussianBackbone(Backbone):
         self.strategy_state = self.config.strategy.initial_state(self.num_gaussians)
 
     def export_ply(self, path) -> Path:
-        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method)."""
-        return export_ply(self, path)
+        """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method).
+
+        The PLY holds the Gaussians only; an environment map goes beside it as `<name>.environment.exr`
+        (lat-long raw values, see sky.environment_image)."""
+        written = export_ply(self, path)
+        if self.environment is not None:
+            export_environment(self.environment, written.with_suffix(".environment.exr"))
+        return written
 
     def get_extra_state(self) -> dict:
         """State outside the parameters that shapes renders and training: the active SH degree

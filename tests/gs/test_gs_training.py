@@ -35,6 +35,15 @@ class TestTwoStepsOfEveryMethod:
         assert all(math.isfinite(r["loss"]) and not r["skipped"] for r in records)
         assert any(not torch.equal(a, b) for a, b in zip(before, trainer.backbone.parameters()))
 
+    @pytest.mark.parametrize("method", ["mono", "hdr-gs"])
+    def test_two_steps_with_an_environment(self, tmp_path, voxel_scene, method):
+        """The methods take the background rows like any Gaussian's and train the sky with them."""
+        trainer = gs_trainer(tmp_path, voxel_scene, method, background="environment")
+        sky = [p.detach().clone() for p in trainer.backbone.environment.parameters()]
+        records = [trainer.train_step() for _ in range(2)]
+        assert all(math.isfinite(r["loss"]) and not r["skipped"] for r in records)
+        assert any(not torch.equal(a, b) for a, b in zip(sky, trainer.backbone.environment.parameters()))
+
     def test_converter_learning_rate_is_configurable(self, tmp_path, voxel_scene):
         trainer = gs_trainer(tmp_path, voxel_scene)
         trainer.config.hdr.converter_lr = 1e-2
