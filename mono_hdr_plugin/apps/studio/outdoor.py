@@ -114,8 +114,8 @@ def backlit_sun_content() -> dict:
     }
 
 
-CLOUDY_SUN = direction(80.0, 14.0)
-"""The sun of `sky-horizon`: higher up and off to the left of the arc, among the clouds."""
+CLOUDY_SUN = direction(88.0, 14.0)
+"""The sun of `sky-horizon`: higher up than that of backlit-sun, among the clouds."""
 
 
 def clouds(directions: np.ndarray, seed: int) -> np.ndarray:
@@ -180,9 +180,9 @@ OUTDOOR_SCENES = (
         description="cloudy sky gradient with a sun, distant hills on the horizon, objects on a textured ground",
         content=sky_horizon_content,
         rig=CameraRig(
-            target=(0.0, 0.5, 0.9), radius=4.0, azimuth_deg=(-115.0, -65.0), elevation_deg=(-1.0, 6.0), fov_deg=65
+            target=(0.0, 0.5, 0.9), radius=4.0, azimuth_deg=(-112.0, -68.0), elevation_deg=(-1.0, 6.0), fov_deg=65
         ),
-        spp=121,
+        spp=169,
         effects=("exposure", "crf", "clip", "quantize"),
         capture=CaptureSettings(crf="srgb"),
     ),
