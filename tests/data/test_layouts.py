@@ -1,5 +1,6 @@
 """Dataset layouts: round trips, camera conventions, exposures, ordering and bad input."""
 
+import dataclasses
 import json
 import math
 
@@ -68,6 +69,12 @@ def written(tmp_path, toy, request):
     return tmp_path / "scene"
 
 
+@pytest.fixture
+def written_nerf(tmp_path, toy):
+    write_layout(toy, tmp_path / "nerf", "hdr-nerf-synthetic")
+    return tmp_path / "nerf"
+
+
 class TestRoundTrip:
     @pytest.mark.parametrize("layout", writable_layouts())
     def test_same_cameras_exposures_pixels(self, tmp_path, toy, layout):
@@ -90,6 +97,29 @@ class TestRoundTrip:
         back = read_layout(tmp_path / "gs")
         torch.testing.assert_close(back.points, toy.points)
         assert back.point_colors.shape == (20, 3)
+
+    @pytest.mark.parametrize("unbounded", [True, False])
+    def test_hdr_nerf_synthetic_keeps_the_unbounded_flag(self, tmp_path, toy, unbounded):
+        """Written as instant-ngp's aabb_scale (16 for an unbounded scene, absent otherwise)."""
+        scene = dataclasses.replace(toy, metadata={"unbounded": unbounded})
+        write_layout(scene, tmp_path / "nerf", "hdr-nerf-synthetic")
+        for split in ("train", "test"):
+            transforms = json.loads((tmp_path / "nerf" / f"transforms_{split}.json").read_text())
+            assert transforms.get("aabb_scale") == (16 if unbounded else None)
+        assert read_layout(tmp_path / "nerf").metadata["unbounded"] is unbounded
+
+    @pytest.mark.parametrize("scale, unbounded", [(1, False), (4, True)])
+    def test_aabb_scale_of_other_tools_is_read(self, written_nerf, scale, unbounded):
+        transforms_file = written_nerf / "transforms_train.json"
+        transforms = json.loads(transforms_file.read_text())
+        transforms_file.write_text(json.dumps({**transforms, "aabb_scale": scale}))
+        assert read_layout(written_nerf).metadata["unbounded"] is unbounded
+
+    def test_bad_aabb_scale_names_the_file(self, written_nerf):
+        transforms_file = written_nerf / "transforms_test.json"
+        transforms_file.write_text(json.dumps({**json.loads(transforms_file.read_text()), "aabb_scale": -2}))
+        with pytest.raises(DatasetError, match=r"transforms_test.json: aabb_scale must be"):
+            read_layout(written_nerf)
 
 
 class TestCameraConversions:
