@@ -31,7 +31,7 @@ def uncontract(points: Tensor) -> Tensor:
     """The inverse of contract on [..., 3] (||y||_inf < 2; the cube's surface is read as _OPEN_CUBE)."""
     norm = points.abs().amax(dim=-1, keepdim=True)
     outer = norm.clamp(1.0, _OPEN_CUBE)
-    scale = outer / (2.0 - outer)  # ||x||_inf, from ||y||_inf = 2 - 1 / ||x||_inf
+    scale = 1.0 / (2.0 - outer)  # ||x||_inf, from ||y||_inf = 2 - 1 / ||x||_inf
     return torch.where(norm <= 1.0, points, points / norm.clamp_min(1.0) * scale)
 
 
