@@ -20,6 +20,10 @@ STUDIO_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 """t1..t5 in seconds, the synthetic HDR-NeRF/HDR-GS exposure times."""
 
 
+INFINITE_EMITTERS = ("envmap", "constant")
+"""Mitsuba emitters that surround the scene at infinity."""
+
+
 @dataclass(frozen=True)
 class CameraRig:
     """Cameras on a sphere around `target`: an arc (forward-facing) or a full hemisphere sweep.
@@ -109,6 +113,11 @@ class StudioScene:
 
     def cameras(self) -> list[Camera]:
         return self.rig.cameras(self.width, self.height)
+
+    def unbounded(self) -> bool:
+        """Whether the scene has light at infinity (an environment emitter: an open sky), which a
+        ray that misses every surface sees."""
+        return any(isinstance(item, dict) and item.get("type") in INFINITE_EMITTERS for item in self.content().values())
 
     def split(self, view: int) -> Literal["train", "test"]:
         """Alternate views: even views train, odd views test."""

@@ -1,10 +1,12 @@
-"""The built-in scenes. Each exercises something different; all exceed 1e4 : 1 dynamic range."""
+"""The built-in scenes. Each exercises something different; all exceed 1e4 : 1 dynamic range.
+The outdoor ones (open sky and sun) are defined in outdoor.py."""
 
 from typing import TypedDict
 
 import numpy as np
 
 from mono_hdr_plugin.apps.studio.capture import CaptureSettings
+from mono_hdr_plugin.apps.studio.outdoor import OUTDOOR_SCENES
 from mono_hdr_plugin.apps.studio.scene import (
     CameraRig,
     StudioScene,
@@ -273,6 +275,7 @@ BUILTIN_SCENES = (
         effects=("exposure", "noise", "crf", "clip", "quantize"),
         capture=CaptureSettings(crf="srgb"),
     ),
+    *OUTDOOR_SCENES,
 )
 
 SCENES: dict[str, StudioScene] = {scene.name: scene for scene in BUILTIN_SCENES}

@@ -1,7 +1,8 @@
 """HDR-NeRF synthetic layout (docs/datasets.md), read and written.
 
 transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
-                               transform_matrix (OpenGL camera-to-world)
+                               transform_matrix (OpenGL camera-to-world); optional aabb_scale
+                               (instant-ngp: > 1 marks an unbounded scene, e.g. one with a sky)
 exposure_{train,test}.json     {file_path + "_<e>.png": seconds}
 <file_path>_<e>.png            e = 0..4 (t1..t5)
 {train,test}_hdr/hdr_%03d.exr  HDR ground truth, index = last "_" token of file_path
@@ -15,7 +16,7 @@ from pathlib import Path
 import torch
 
 from mono_hdr_plugin.core.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
-from mono_hdr_plugin.core.validation import between
+from mono_hdr_plugin.core.validation import POSITIVE, between
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
@@ -36,6 +37,8 @@ SPLITS = ("train", "test")
 MAX_EXPOSURES = 5
 FIELD_OF_VIEW = between(0, math.pi, low_open=True, high_open=True)
 """camera_angle_x, in radians: a pinhole camera sees less than half the sphere."""
+UNBOUNDED_AABB_SCALE = 16
+"""aabb_scale written for an unbounded scene: instant-ngp's value for content far beyond the cameras."""
 
 
 def detect(folder: Path) -> bool:
@@ -88,6 +91,7 @@ def _read_split(folder: Path, split: str, first_view_id: int):
     angle = json_number(
         transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)", FIELD_OF_VIEW
     )
+    aabb_scale = json_number(transforms.get("aabb_scale", 1), f"{transforms_file}: aabb_scale", POSITIVE)
     poses = []
     first_listed: dict[str, int] = {}  # file_path -> index of the frame that lists it first
     for index, frame in enumerate(frames):
@@ -114,7 +118,7 @@ def _read_split(folder: Path, split: str, first_view_id: int):
     for offset, (file_path, c2w_gl) in enumerate(poses):
         shots = _frame_shots(folder, file_path, exposures, exposure_file)
         views.append((first_view_id + offset, split, file_path, c2w_gl, shots))
-    return angle, views
+    return angle, aabb_scale, views
 
 
 def _hdr_source(folder: Path, split: str, file_path: str):
@@ -125,8 +129,8 @@ def _hdr_source(folder: Path, split: str, file_path: str):
 
 def read(folder: Path) -> CapturedScene:
     """Every photo of an HDR-NeRF synthetic scene; train/test from the two transforms files."""
-    angle_train, train = _read_split(folder, "train", 0)
-    angle_test, test = _read_split(folder, "test", len(train))
+    angle_train, scale_train, train = _read_split(folder, "train", 0)
+    angle_test, scale_test, test = _read_split(folder, "test", len(train))
     if not math.isclose(angle_train, angle_test, rel_tol=1e-6):
         raise DatasetError(
             f"{folder}: camera_angle_x differs between transforms_train.json and "
@@ -164,7 +168,11 @@ def read(folder: Path) -> CapturedScene:
         views=views,
         bounds_min=bounds_min,
         bounds_max=bounds_max,
-        metadata={"source": str(folder), "layout": "hdr-nerf-synthetic"},
+        metadata={
+            "source": str(folder),
+            "layout": "hdr-nerf-synthetic",
+            "unbounded": max(scale_train, scale_test) > 1,
+        },
     )
 
 
@@ -196,7 +204,8 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
                 write_exr(folder / f"{split}_hdr" / f"hdr_{index:03d}.exr", view.hdr())
             c2w_gl = view.camera.c2w.double() @ OPENGL_TO_OPENCV.double()
             frames.append({"file_path": file_path, "transform_matrix": c2w_gl.tolist()})
-        write_json(folder / f"transforms_{split}.json", {"camera_angle_x": angle, "frames": frames})
+        extent = {"aabb_scale": UNBOUNDED_AABB_SCALE} if scene.metadata.get("unbounded") else {}
+        write_json(folder / f"transforms_{split}.json", {"camera_angle_x": angle, **extent, "frames": frames})
         write_json(folder / f"exposure_{split}.json", exposures)
 
 
