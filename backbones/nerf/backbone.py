@@ -17,7 +17,14 @@ from backbones.nerf.fields import GridRadianceField, MlpRadianceField, Occupancy
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
-from backbones.nerf.unbounded import contract, contracted_lengths, far_candidates, uncontract, unwarp
+from backbones.nerf.unbounded import (
+    camera_region,
+    contract,
+    contracted_lengths,
+    far_candidates,
+    uncontract,
+    unwarp,
+)
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.environment import EnvironmentMap, up_from_cameras
@@ -96,6 +103,9 @@ class NerfBackbone(Backbone):
         self.scene_scale = float(0.5 * (bounds_max - bounds_min).max())
         self.render_chunk = config.render_chunk
         self.contracted, environment = unbounded_choices(config, scene.unbounded)
+        region = camera_region(scene.train_cameras, self.scene_center) if self.contracted else None
+        if region is not None:
+            self.scene_center, self.scene_scale = region
         self.far = config.far_distance * self.scene_scale
         self.environment = _environment_map(scene, config.environment_width) if environment else None
         field = config.field

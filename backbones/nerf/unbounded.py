@@ -69,3 +69,25 @@ def contracted_lengths(origins: Tensor, directions: Tensor, t0: Tensor, t1: Tens
     start = contract(origins[:, None] + t0[..., None] * directions[:, None])
     end = contract(origins[:, None] + t1[..., None] * directions[:, None])
     return (end - start).norm(dim=-1)
+
+
+def camera_region(cameras: list, fallback_center: Tensor) -> tuple[Tensor, float] | None:
+    """The unit region of a contracted scene: the cube around the point the cameras look at
+    (least squares over their optical axes, pulled weakly to fallback_center where the axes are
+    parallel), just large enough to hold the cameras. None without cameras.
+
+    An unbounded scene's box holds the far ground and the horizon; the cameras' region keeps the
+    grid's full resolution for what they are looking at and leaves the rest to the contraction.
+    """
+    if not cameras:
+        return None
+    centers = torch.stack([camera.center.double() for camera in cameras])
+    axes = torch.stack([camera.c2w[:3, 2].double() for camera in cameras])
+    axes = axes / axes.norm(dim=-1, keepdim=True)
+    projectors = torch.eye(3, dtype=torch.float64) - axes[:, :, None] * axes[:, None, :]
+    weak = 1e-3 * len(cameras)
+    matrix = projectors.sum(0) + weak * torch.eye(3, dtype=torch.float64)
+    target = (projectors @ centers[:, :, None]).sum(0)[:, 0] + weak * fallback_center.double()
+    center = torch.linalg.solve(matrix, target)
+    half_size = float((centers - center).abs().amax()) * 1.05
+    return center.float(), max(half_size, 1e-3)
