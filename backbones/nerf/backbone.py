@@ -17,8 +17,17 @@ from backbones.nerf.fields import GridRadianceField, MlpRadianceField, Occupancy
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
+from backbones.nerf.unbounded import (
+    camera_region,
+    contract,
+    contracted_lengths,
+    far_candidates,
+    uncontract,
+    unwarp,
+)
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.environment import EnvironmentMap, up_from_cameras
 
 
 def _checked_bounds(scene: SceneInfo) -> tuple[Tensor, Tensor]:
@@ -37,6 +46,28 @@ def _checked_bounds(scene: SceneInfo) -> tuple[Tensor, Tensor]:
             f"got {scene.bounds_min} and {scene.bounds_max}; fix the scene's bounds"
         )
     return bounds_min, bounds_max
+
+
+def unbounded_choices(config: NerfConfig, unbounded: bool) -> tuple[bool, bool]:
+    """(contracted, environment background) for a scene: the flags, where auto follows the scene."""
+    grid = isinstance(config.field, GridFieldConfig)
+    if not grid and (config.contraction == "on" or config.background == "environment"):
+        raise ValueError(
+            "--backbone.contraction on and --backbone.background environment need the grid field: "
+            "use --preset cpu, or set them to off / none with --preset paper"
+        )
+    contracted = config.contraction == "on" or (config.contraction == "auto" and unbounded and grid)
+    environment = config.background == "environment" or (config.background == "auto" and unbounded and grid)
+    return contracted, environment
+
+
+def _environment_map(scene: SceneInfo, width: int) -> EnvironmentMap:
+    """The background at infinity, its pole the cameras' mean up direction, as many pyramid levels
+    (up to 4) as leave 4 texels at the coarsest."""
+    cameras = scene.train_cameras
+    up = up_from_cameras(torch.stack([c.c2w.float() for c in cameras])) if cameras else torch.tensor([0.0, 0.0, 1.0])
+    levels = next(n for n in (4, 3, 2, 1) if width >> (2 * (n - 1)) >= 4)
+    return EnvironmentMap(up, width=width, levels=levels)
 
 
 class NerfBackbone(Backbone):
@@ -59,17 +90,24 @@ class NerfBackbone(Backbone):
     def __init__(self, config: NerfConfig, scene: SceneInfo):
         super().__init__(config, scene)
         bounds_min, bounds_max = _checked_bounds(scene)
-        if len(config.background) != 3:
-            raise ValueError(f"NerfConfig.background must be 3 numbers (RGB), got {config.background}")
+        if len(config.background_color) != 3:
+            raise ValueError(f"NerfConfig.background_color must be 3 numbers (RGB), got {config.background_color}")
         if config.render_chunk < 1:
             raise ValueError(f"NerfConfig.render_chunk must be >= 1, got {config.render_chunk}")
         self.register_buffer("bounds_min", bounds_min)
         self.register_buffer("bounds_max", bounds_max)
-        self.register_buffer("background", torch.tensor(config.background, dtype=torch.float32))
+        # "background" is the name checkpoints hold the colour under.
+        self.register_buffer("background", torch.tensor(config.background_color, dtype=torch.float32))
         # One isotropic scale (half the longest side) so normalised distances stay Euclidean.
         self.scene_center = 0.5 * (bounds_min + bounds_max)
         self.scene_scale = float(0.5 * (bounds_max - bounds_min).max())
         self.render_chunk = config.render_chunk
+        self.contracted, environment = unbounded_choices(config, scene.unbounded)
+        region = camera_region(scene.train_cameras, self.scene_center) if self.contracted else None
+        if region is not None:
+            self.scene_center, self.scene_scale = region
+        self.far = config.far_distance * self.scene_scale
+        self.environment = _environment_map(scene, config.environment_width) if environment else None
         field = config.field
         self.pixel_batch = field.rays_per_step
         # The converters learn at the field's MLP rate, as the official NeRF recipe trains both at 5e-4.
@@ -105,10 +143,15 @@ class NerfBackbone(Backbone):
                 "the grid field needs 1 <= rays_per_step <= max_rays_per_step and samples_per_step "
                 f">= 1, got {field.rays_per_step}, {field.max_rays_per_step}, {field.samples_per_step}"
             )
+        if self.contracted and field.occupancy_resolution % 4:
+            raise ValueError(
+                "with the contraction on, --backbone.field.occupancy-resolution must be a multiple of 4 "
+                f"(its middle half is the unit region), got {field.occupancy_resolution}"
+            )
         load_extension()  # built (or loaded) here, so a first build is never counted as training time
         self.grid_field = GridRadianceField(field)
         self.occupancy = OccupancyGrid(field.occupancy_resolution)
-        self.occupancy.mark_seen(scene.train_cameras, self.to_world)
+        self.occupancy.mark_seen(scene.train_cameras, self.field_to_world)
         # The adaptive ray batch is state: a resumed run continues with the same batch.
         self.register_buffer("rays_per_step", torch.tensor(field.rays_per_step))
         self.register_load_state_dict_post_hook(lambda module, keys: module._sync_pixel_batch())
@@ -143,7 +186,12 @@ class NerfBackbone(Backbone):
             ]
         grid = self.grid_field
         # Instant-NGP's Adam: beta2 = 0.99, so rarely-hit grid cells follow their recent gradients.
-        return [
+        environment = (
+            [{"name": "nerf_environment", "params": list(self.environment.parameters()), "lr": field.grid_lr}]
+            if self.environment is not None
+            else []
+        )
+        return environment + [
             {"name": "nerf_grid", "params": [grid.table], "lr": field.grid_lr, "betas": (0.9, 0.99)},
             {
                 "name": "nerf_mlp",
@@ -207,6 +255,18 @@ class NerfBackbone(Backbone):
     def to_world(self, points: Tensor) -> Tensor:
         """Normalised points [..., 3] -> world points (the inverse of normalise)."""
         return points * self.scene_scale + self.scene_center.to(points)
+
+    def field_points(self, points: Tensor) -> Tensor:
+        """World points [..., 3] -> where the grid field and the occupancy grid read them, [-1, 1]^3:
+        normalised, and with the contraction on, contracted and halved (the unit region is the
+        middle half)."""
+        normalised = self.normalise(points)
+        return contract(normalised) / 2.0 if self.contracted else normalised
+
+    def field_to_world(self, points: Tensor) -> Tensor:
+        """Field points [..., 3] -> world points (the inverse of field_points; with the contraction
+        on, the cube's surface stands for points 1000 half sides away)."""
+        return self.to_world(uncontract(2.0 * points) if self.contracted else points)
 
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         """Per-sample LDR colours of the camera's rays and their compositing closure.
@@ -272,29 +332,48 @@ class NerfBackbone(Backbone):
         fine.auxiliary = [coarse]
         return fine
 
+    def _segments(self, origins: Tensor, directions: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+        """Each ray's [t_near, t_far] inside the scene box, or with the contraction on, inside the
+        unit region (the box's cube), whose far part then reaches far_distance."""
+        if not self.contracted:
+            return ray_segments(origins, directions, camera.near, camera.far, (self.bounds_min, self.bounds_max))
+        center, half = self.scene_center.to(origins), self.scene_scale
+        return ray_segments(origins, directions, camera.near, max(camera.far, self.far), (center - half, center + half))
+
+    def _far_start(self, t_far: Tensor) -> Tensor:
+        """Where a ray's samples linear in disparity begin: its exit of the unit region (> 0)."""
+        return t_far.clamp_min(1e-6 * self.scene_scale)
+
     def march(
         self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """Marched samples of the cpu field, S = max_samples_per_ray per ray at most.
+        """Marched samples of the cpu field, S = max_samples_per_ray per ray at most (with the
+        contraction on, followed by far_samples candidates beyond the unit region, kept where occupied).
 
         Returns t, delta [N, S] (world units; delta 0 past a ray's samples, where t stays at the
         ray's far end, so rows are sorted), the flat indices [M] of the real samples in [N * S],
         and fraction [N, S]: where in its bin of occupied length each sample sits (0.5 unless jittered).
+        With the contraction on, t and delta beyond the unit region are warped distances
+        (unbounded.unwarp; t itself inside it).
         """
         field = self.config.field
-        t_near, t_far = ray_segments(origins, directions, camera.near, camera.far, (self.bounds_min, self.bounds_max))
+        t_near, t_far = self._segments(origins, directions, camera)
         samples = field.max_samples_per_ray
         fraction = (
             torch.rand(origins.shape[0], samples, device=origins.device)
             if stochastic
             else torch.full((origins.shape[0], samples), 0.5, device=origins.device)
         )
+        occupied = self.occupancy.occupied
+        if self.contracted:  # the unit region is the middle half of the grid
+            quarter = occupied.shape[0] // 4
+            occupied = occupied[quarter:-quarter, quarter:-quarter, quarter:-quarter]
         t, delta, counts = march_rays(
             origins,
             directions,
             t_near,
             t_far,
-            self.occupancy.occupied,
+            occupied,
             self.scene_center,
             self.scene_scale,
             field.min_step * self.scene_scale,
@@ -303,7 +382,34 @@ class NerfBackbone(Backbone):
         )
         real = torch.arange(samples, device=counts.device) < counts[:, None]
         t = torch.where(real, t, t_far[:, None].expand_as(t))
+        if self.contracted:
+            t_start = self._far_start(t_far)
+            jitter = torch.rand(origins.shape[0], field.far_samples, device=origins.device) if stochastic else None
+            u, du, far_fraction = far_candidates(t_start, self.scene_scale, field.far_samples, jitter)
+            far_points = (
+                origins[:, None] + unwarp(u, t_start, self.scene_scale, self.far)[..., None] * directions[:, None]
+            )
+            far_real = self.occupancy.occupied_at(self.field_points(far_points))
+            t, fraction, real = (
+                torch.cat([t, u], -1),
+                torch.cat([fraction, far_fraction], -1),
+                torch.cat([real, far_real], -1),
+            )
+            delta = torch.cat([delta, torch.where(far_real, du, torch.zeros_like(du))], -1)
         return t, delta, real.reshape(-1).nonzero()[:, 0], fraction
+
+    def _distances(
+        self, origins: Tensor, directions: Tensor, t: Tensor, delta: Tensor, t_far: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Marched t, delta [N, S] (see march) -> distances t [N, S] and the lengths the samples stand
+        for in the field's frame (normalised; with the contraction on, contracted), which densities are per."""
+        if not self.contracted:
+            return t, delta / self.scene_scale
+        t_start = self._far_start(t_far)
+        t0 = unwarp(t, t_start, self.scene_scale, self.far)
+        t1 = unwarp(t + delta, t_start, self.scene_scale, self.far)
+        lengths = contracted_lengths(self.normalise(origins), directions / self.scene_scale, t0, t1)
+        return t0, torch.where(delta > 0, lengths, torch.zeros_like(lengths))
 
     def place_samples(
         self, origins: Tensor, directions: Tensor, camera: Camera, stochastic: bool
@@ -312,52 +418,63 @@ class NerfBackbone(Backbone):
         without gradients places importance_samples per ray from their weights (or, with 0, keeps
         the marched samples in front of early_stop_transmittance while training).
 
-        Returns t, delta [N, S] (world units, rows sorted) and the flat indices [M] of the samples
-        to shade in [N * S].
+        Returns t [N, S] (world units, rows sorted), the lengths the samples stand for in the field's
+        frame [N, S] (see _distances) and the flat indices [M] of the samples to shade in [N * S].
         """
         field = self.config.field
-        t, delta, flat, fraction = self.march(origins, directions, camera, stochastic)
+        marched, delta, flat, fraction = self.march(origins, directions, camera, stochastic)
+        t_far = self._segments(origins, directions, camera)[1]
+        t, lengths = self._distances(origins, directions, marched, delta, t_far)
         wants_proposal = field.importance_samples > 0 or (
             torch.is_grad_enabled() and field.early_stop_transmittance > 0
         )
         if not wants_proposal or not flat.numel():
-            return t, delta, flat
+            return t, lengths, flat
         ray_of = flat // t.shape[1]
         with torch.no_grad():
-            positions = self.normalise(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
+            positions = self.field_points(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
             density = (
                 self.occupancy.lookup(positions)
                 if field.proposal == "cache" and field.importance_samples > 0
                 else self.grid_field.density(positions)
             )
-            weights = self._weights(density, flat, delta / self.scene_scale)
+            weights = self._weights(density, flat, lengths)
             if field.importance_samples > 0:
-                t, delta = resample_occupied(
-                    t, delta, fraction, weights, field.importance_samples, deterministic=not stochastic
+                marched, delta = resample_occupied(
+                    marched, delta, fraction, weights, field.importance_samples, deterministic=not stochastic
                 )
-                return t, delta, (delta > 0).reshape(-1).nonzero()[:, 0]
+                t, lengths = self._distances(origins, directions, marched, delta, t_far)
+                return t, lengths, (delta > 0).reshape(-1).nonzero()[:, 0]
             transmittance = 1.0 - (torch.cumsum(weights, dim=-1) - weights)
-            return t, delta, flat[transmittance.reshape(-1)[flat] > field.early_stop_transmittance]
+            return t, lengths, flat[transmittance.reshape(-1)[flat] > field.early_stop_transmittance]
 
     def _render_grid(
         self, origins: Tensor, directions: Tensor, camera: Camera, output_shape: tuple[int, ...], stochastic: bool
     ) -> LdrFeatures:
         """Packed features: the field runs on the placed samples (place_samples) and only those
-        whose weight reaches min_sample_weight get a colour."""
+        whose weight reaches min_sample_weight get a colour; with the environment background,
+        each ray ends with one more sample, the map's colour in its direction, weighted by the
+        transmittance left."""
         field = self.config.field
-        t, delta, flat = self.place_samples(origins, directions, camera, stochastic)
+        t, lengths, flat = self.place_samples(origins, directions, camera, stochastic)
         rays, samples = t.shape
         if stochastic:
             self._last_batch = (rays, flat.numel())
         ray_of = flat // samples
-        positions = self.normalise(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
+        positions = self.field_points(origins[ray_of] + t.reshape(-1)[flat, None] * directions[ray_of])
         density, geometry = self.grid_field.density_and_geometry(positions)
-        weights = self._weights(density, flat, delta / self.scene_scale)
+        weights = self._weights(density, flat, lengths)
         sample_weights = weights.reshape(-1)[flat]
         coloured = sample_weights.detach() >= max(field.min_sample_weight, torch.finfo(weights.dtype).tiny)
-        ray_indices = ray_of[coloured]
+        ray_indices, kept_weights = ray_of[coloured], sample_weights[coloured]
         raw_color = self.grid_field.color(geometry[coloured], directions[ray_indices])
         accumulation = weights.sum(dim=-1)
+        covered = accumulation
+        if self.environment is not None:
+            left = (1.0 - accumulation).clamp_min(0.0)
+            raw_color = torch.cat([raw_color, self.environment(directions)])
+            ray_indices = torch.cat([ray_indices, torch.arange(rays, device=ray_indices.device)])
+            kept_weights, covered = torch.cat([kept_weights, left]), accumulation + left
         extras = {
             "weights": weights,
             "sample_distances": t,
@@ -365,9 +482,7 @@ class NerfBackbone(Backbone):
             "depth": (weights * t).sum(dim=-1).reshape(output_shape),
             "alpha": accumulation.reshape(output_shape),
         }
-        composite = make_packed_composite(
-            sample_weights[coloured], ray_indices, accumulation, output_shape, self.background
-        )
+        composite = make_packed_composite(kept_weights, ray_indices, covered, output_shape, self.background)
         colors = F.softplus(raw_color) if field.color_activation == "softplus" else torch.sigmoid(raw_color)
         return LdrFeatures(
             colors=colors,

@@ -148,6 +148,9 @@ class GridFieldConfig:
     """Adam learning rate of the tiny MLPs."""
     lr_final_factor: float = 0.1
     """Learning rates decay exponentially to this factor at the last step of the run."""
+    far_samples: int = 32
+    """With the contraction on: candidate samples per ray beyond the unit region, linear in
+    disparity out to NerfConfig.far_distance; the occupancy grid keeps those in occupied cells."""
 
     flag_rules: ClassVar = {
         "levels": at_least(1),
@@ -175,6 +178,7 @@ class GridFieldConfig:
         "grid_lr": POSITIVE,
         "mlp_lr": POSITIVE,
         "lr_final_factor": POSITIVE,
+        "far_samples": at_least(1),
     }
 
 
@@ -188,11 +192,39 @@ class NerfConfig:
     field: Annotated[FieldConfig, tyro.conf.AvoidSubcommands] = dataclasses.field(default_factory=GridFieldConfig)
     """The radiance field and its sampling and optimiser settings: GridFieldConfig (preset cpu) or
     MlpFieldConfig (preset paper, the official 8 x 256 MLP)."""
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """Colour behind the scene, added as (1 - accumulation) * background to every group of 3
-    composited channels (LDR and HDR alike); black, as in the paper's synthetic scenes."""
+    background_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Colour behind the scene, added as (1 - accumulation) * background_color to every group of 3
+    composited channels (LDR and HDR alike); black, as in the paper's synthetic scenes. Unused
+    where an environment map (background = environment) fills what the field leaves."""
+    background: Literal["auto", "environment", "none"] = "auto"
+    """What lies behind the field's last sample: environment, a learned map of raw colours by
+    direction (core/environment.py) as one final sample per ray with the transmittance left
+    (lifted to HDR like every sample); none, background_color. auto: environment iff the
+    scene is unbounded (its data says so). The paper field has none (auto picks none for it)."""
+    # checkpoints written before this field existed were never contracted
+    contraction: Literal["auto", "on", "off"] = dataclasses.field(
+        default="auto", metadata={ABSENT_IN_SAVED_CONFIG: "off"}
+    )
+    """on: nerfacto's scene contraction, so the grid field and the occupancy grid cover all of
+    space (the scene box's unit region as it is, the rest squeezed into a shell around it) and
+    samples beyond the box run linear in disparity out to far_distance. auto: on iff the scene
+    is unbounded. The paper field is never contracted (auto picks off for it)."""
+    far_distance: float = 1000.0
+    """With the contraction on: where sampling ends, in half sides of the scene box from its centre."""
+    environment_width: int = 512
+    """Texels around the environment map's equator (finest level)."""
     render_chunk: int = 8192
     """Rays rendered at once when a whole image is rendered in pieces: memory is bounded by
     render_chunk x the field's samples per ray."""
 
-    flag_rules: ClassVar = {"background": FRACTION, "render_chunk": at_least(1)}
+    flag_rules: ClassVar = {
+        "background_color": FRACTION,
+        "far_distance": between(1, 1e8, low_open=True),
+        "environment_width": at_least(16),
+        "render_chunk": at_least(1),
+    }
+
+    def __post_init__(self):
+        # Configs saved before the environment background held the colour in `background`.
+        if isinstance(self.background, (tuple, list)):
+            self.background_color, self.background = tuple(self.background), "none"

@@ -187,6 +187,11 @@ class OccupancyGrid(nn.Module):
         )
         return values.reshape(-1)
 
+    def occupied_at(self, positions: Tensor) -> Tensor:
+        """Whether the cells holding positions [..., 3] (in [-1, 1], clamped to the cube) are occupied: bool [...]."""
+        cells = ((positions + 1.0) * (self.resolution / 2.0)).floor().long().clamp(0, self.resolution - 1)
+        return self.occupied[cells[..., 2], cells[..., 1], cells[..., 0]]
+
     @torch.no_grad()
     def mark_seen(self, cameras, to_world) -> None:
         """Keep only cells some camera sees: a cell counts as seen when a corner or its centre

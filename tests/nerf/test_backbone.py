@@ -38,7 +38,7 @@ class TestNerfPresets:
         assert list(presets) == ["cpu", "paper"]
         assert presets["cpu"] == NerfConfig()
         assert isinstance(NerfConfig().field, GridFieldConfig)
-        assert NerfConfig().background == (0.0, 0.0, 0.0)
+        assert NerfConfig().background_color == (0.0, 0.0, 0.0)
 
 
 class TestNerfBackboneSetup:
@@ -206,7 +206,7 @@ class TestRenderLdrFeatures:
         assert (positions[hits].abs() <= 1.0 + 1e-4).all()
 
     def test_background_fills_rays_that_miss(self, scene):
-        backbone = NerfBackbone(tiny_config("cpu", background=(0.1, 0.2, 0.3)), scene)
+        backbone = NerfBackbone(tiny_config("cpu", background_color=(0.1, 0.2, 0.3)), scene)
         looking_away = Camera(look_at(torch.tensor([3.0, 0.0, 0.0]), torch.tensor([6.0, 0.0, 0.0])), 8, 8, 4, 4, 8, 8)
         features = backbone.render_ldr_features(looking_away)
         image = features.composite(torch.rand_like(features.colors))
@@ -288,7 +288,7 @@ def unpacked_render(backbone: NerfBackbone, camera: Camera) -> torch.Tensor:
         positions.reshape(-1, 3), directions[:, None].expand_as(positions).reshape(-1, 3)
     )
     density = torch.where(placed, density, torch.zeros_like(density)).reshape(t.shape)
-    weights = compositing_weights(density, delta / backbone.scene_scale)
+    weights = compositing_weights(density, delta)
     colors = COLOR_ACTIVATIONS[backbone.config.field.color_activation](raw_color)
     image = torch.einsum("ns,nsc->nc", weights, colors.reshape(*t.shape, 3))
     return image.reshape(camera.height, camera.width, 3)
