@@ -181,17 +181,18 @@ def source_metrics(pred_hdr: Tensor, gt_hdr: Tensor, pred_ldr: Tensor, photo: Te
     return {"hdr_peak_ratio": hdr, "ldr_peak_ratio": ldr}
 
 
-def chroma_outliers(pred_hdr: Tensor, gt_hdr: Tensor) -> float:
-    """Fraction of pixels whose chromaticity (r, g, b) / (r + g + b) is off by more than CHROMA_BOUND in
-    any channel: coloured floaters, sky painted onto the foreground. Chromaticity ignores the level,
-    so the score needs no calibration. Pixels darker than 5 % of the ground truth's median (whose
-    colour is noise) do not count."""
-    gt_sum, pred_sum = gt_hdr.sum(-1), pred_hdr.sum(-1)
-    counted = (gt_sum > 0.05 * gt_sum.median()) & (gt_sum > 0)
-    gt_chroma = gt_hdr[counted] / gt_sum[counted, None]
-    pred_chroma = pred_hdr[counted] / pred_sum[counted, None].clamp_min(1e-12)
-    off = (pred_chroma - gt_chroma).abs().amax(-1) > CHROMA_BOUND
-    return float(off.double().mean()) if counted.any() else math.nan
+def chroma_outliers(pred_hdr: Tensor, gt_hdr: Tensor, photo: Tensor) -> float:
+    """Fraction of the pixels the test photo exposes well whose chromaticity (r, g, b) / (r + g + b) is
+    off by more than CHROMA_BOUND in any channel: coloured floaters, sky painted onto the foreground.
+    Chromaticity ignores the level, so the score needs no calibration. Only well-exposed pixels count
+    (core.calibration.WELL_EXPOSED): in a pixel the photo clips or buries in noise and quantisation,
+    the LDR training data holds no colour to get right. NaN when no pixel is well exposed."""
+    counted = well_exposed(photo) & (gt_hdr.sum(-1) > 0)
+    if not counted.any():
+        return math.nan
+    gt_chroma = gt_hdr[counted] / gt_hdr[counted].sum(-1, keepdim=True)
+    pred_chroma = pred_hdr[counted] / pred_hdr[counted].sum(-1, keepdim=True).clamp_min(1e-12)
+    return float(((pred_chroma - gt_chroma).abs().amax(-1) > CHROMA_BOUND).double().mean())
 
 
 class LpipsUnavailable(RuntimeError):

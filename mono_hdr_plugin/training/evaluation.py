@@ -128,7 +128,7 @@ def _score_view(
         row.update(hdr_metrics(output.hdr, view.hdr))
         row.update(hdr_scale_metrics(output.hdr, view.hdr, view.image))
         row.update(source_metrics(output.hdr, view.hdr, ldr, view.image))
-        row["chroma_outliers"] = chroma_outliers(output.hdr, view.hdr)
+        row["chroma_outliers"] = chroma_outliers(output.hdr, view.hdr, view.image)
         if lpips_model is not None:
             row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
         if render_dir is not None:

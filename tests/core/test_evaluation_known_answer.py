@@ -89,7 +89,7 @@ def scale_figures(hdr: np.ndarray, gt: np.ndarray, photo: np.ndarray) -> dict[st
 
 def source_figures(hdr: np.ndarray, gt: np.ndarray, ldr: np.ndarray, photo: np.ndarray) -> dict[str, float]:
     """Peak ratios on the ground truth's brightest pixels (>= half its max) and their 8 neighbours, and the
-    fraction of pixels (brighter than 5 % of the median sum) whose chromaticity is off by more than 0.05."""
+    fraction of the pixels the photo exposes well whose chromaticity is off by more than 0.05."""
     bright = gt.max(-1) >= 0.5 * gt.max()
     region = np.zeros_like(bright)
     for dy in (-1, 0, 1):
@@ -101,7 +101,7 @@ def source_figures(hdr: np.ndarray, gt: np.ndarray, ldr: np.ndarray, photo: np.n
             ]
             region |= shifted
     gt_sum = gt.sum(-1)
-    counted = (gt_sum > 0.05 * np.sort(gt_sum.ravel())[(gt_sum.size - 1) // 2]) & (gt_sum > 0)
+    counted = well_exposed(photo) & (gt_sum > 0)
     chroma_gt = gt[counted] / gt_sum[counted, None]
     chroma_pred = hdr[counted] / np.maximum(hdr.sum(-1)[counted, None], 1e-12)
     return {

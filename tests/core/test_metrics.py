@@ -175,16 +175,21 @@ class TestSourceMetrics:
 class TestChromaOutliers:
     def test_counts_pixels_whose_colour_is_off_whatever_their_level(self):
         gt = torch.tensor([0.2, 0.3, 0.5]).repeat(4, 5, 1)  # sky blue, 20 pixels
+        photo = gt.clone()  # every pixel well exposed
         pred = 7.0 * gt  # another level, the same colour: never an outlier
         pred[0, 0] = torch.tensor([0.3, 0.6, 0.1])  # a green floater
         pred[1, 1] = torch.tensor([0.23, 0.3, 0.47])  # chromaticity off by 0.03: within the bound
         pred[2, 2] = torch.tensor([0.5, 0.2, 0.3])  # magenta
-        assert chroma_outliers(pred, gt) == pytest.approx(2 / 20)
+        assert chroma_outliers(pred, gt, photo) == pytest.approx(2 / 20)
 
-    def test_pixels_too_dark_to_have_a_colour_do_not_count(self):
+    def test_only_pixels_the_photo_exposes_well_count(self):
         gt = torch.tensor([0.2, 0.3, 0.5]).repeat(3, 5, 1)
-        gt[0] *= 1e-3  # 5 pixels far below 5 % of the median: left out
+        photo = gt.clone()
+        photo[0] = torch.tensor([0.01, 0.02, 0.04])  # buried in the dark: 5 pixels left out
+        photo[1, :2] = 1.0  # clipped: 2 more left out
         pred = gt.clone()
-        pred[0] = torch.tensor([1e-3, 0.0, 0.0])  # wrong colour, but not counted
-        pred[1, 0] = torch.tensor([0.5, 0.3, 0.2])  # counted, and wrong
-        assert chroma_outliers(pred, gt) == pytest.approx(1 / 10)
+        pred[0] = torch.tensor([1.0, 0.0, 0.0])  # wrong colours, but not counted
+        pred[1, :2] = torch.tensor([1.0, 0.0, 0.0])
+        pred[2, 0] = torch.tensor([0.5, 0.3, 0.2])  # counted, and wrong
+        assert chroma_outliers(pred, gt, photo) == pytest.approx(1 / 8)
+        assert math.isnan(chroma_outliers(pred, gt, torch.ones_like(photo)))

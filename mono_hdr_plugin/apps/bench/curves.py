@@ -121,7 +121,8 @@ def write_curves_report(store: RowStore, out: Path) -> None:
         "Median ratio: calibrated HDR / ground truth over pixels the test photo exposes well (1 is exact).",
         "Peak ratio: the calibrated HDR's peak on the brightest source (sun, bulb) over the ground truth's, mean over "
         "views; worst peak: the view farthest from 1 (near 0: the source is lost).",
-        "Chroma outliers: fraction of pixels whose chromaticity is off by more than 0.05 (coloured floaters).",
+        "Chroma outliers: fraction of well-exposed pixels whose chromaticity is off by more than 0.05 "
+        "(coloured floaters).",
     ]
     out.mkdir(parents=True, exist_ok=True)
     (out / "curves.md").write_text("\n".join(lines) + "\n")
