@@ -22,9 +22,14 @@ def captured_scene(config: DataConfig) -> CapturedScene:
     if config.data is not None and config.scene is not None:
         raise FlagError(f"--data {config.data} and --scene {config.scene} name two scenes: pass one of them")
     if config.data is not None:
+        if config.resolution is not None:
+            raise FlagError(
+                f"--resolution {config.resolution} sizes a --scene; the photos in --data {config.data} keep "
+                "their size: shrink them with --downscale"
+            )
         return read_layout(config.data, config.layout)
     if config.scene is not None:
-        return named_scene(config.scene, seed=config.exposure_seed)
+        return named_scene(config.scene, seed=config.exposure_seed, resolution=config.resolution)
     raise DatasetError(
         f"no scene given: pass --data FOLDER or --scene NAME (built-in scenes: {', '.join(scene_names())})"
     )
