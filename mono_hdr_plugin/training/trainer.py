@@ -105,6 +105,8 @@ class Trainer:
         self.view_order: list[int] = []
         self.step = 0
         self.train_seconds = 0.0
+        self.evaluation_seconds: list[float] = []
+        """How long each evaluation during this process took (the time left counts the ones to come)."""
         self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
         self.saved_step: int | None = None
@@ -291,6 +293,7 @@ class Trainer:
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
         """Test-view metrics of the current model (eval mode, HDR calibrated), with the step and
         training seconds."""
+        started = time.perf_counter()
         self.calibrate()
         metrics = evaluate(
             self.pipeline,
@@ -298,6 +301,7 @@ class Trainer:
             self.config.max_eval_views,
             render_dir=self.config.out / "renders" if save_renders else None,
         )
+        self.evaluation_seconds.append(time.perf_counter() - started)
         return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 
     # -------------------------------------------------------------- checkpoints
