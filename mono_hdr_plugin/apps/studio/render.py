@@ -178,10 +178,12 @@ def render_minutes(scene: StudioScene) -> float:
 
 
 def minutes_text(minutes: float) -> str:
-    """`about 2 minutes`, `about 32 minutes`, `about 3.4 hours`."""
+    """`under a minute`, `about 2 minutes`, `about 32 minutes`, `about 3.4 hours`."""
+    if minutes < 1:
+        return "under a minute"
     if minutes >= 90:
         return f"about {minutes / 60:.1f} hours"
-    return f"about {max(1, round(minutes))} minute{'' if round(minutes) <= 1 else 's'}"
+    return f"about {round(minutes)} minute{'' if round(minutes) == 1 else 's'}"
 
 
 def render_cache_path(scene: StudioScene) -> Path:
