@@ -114,7 +114,10 @@ class GaussianBackbone(Backbone):
         self.scene_extent = scene.extent
         training_pixels = sum(camera.width * camera.height for camera in scene.train_cameras)
         means, colors = self._initial_points(config, scene)
-        self.budget = config.strategy.budget(training_pixels) if training_pixels else means.shape[0]
+        self.full_budget = config.strategy.budget(training_pixels) if training_pixels else means.shape[0]
+        self.budget = self.full_budget
+        """The most Gaussians density control grows to now: the full budget scaled to the pixels of the
+        current coarse-to-fine level (set_image_scale)."""
         if means.shape[0] > self.budget:  # start within the budget: a random subset
             keep = torch.randperm(means.shape[0])[: self.budget]
             means, colors = means[keep], colors[keep]
@@ -249,6 +252,11 @@ class GaussianBackbone(Backbone):
         return LdrFeatures(
             colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite, extras=extras
         )
+
+    def set_image_scale(self, scale: float) -> None:
+        """A coarse level has scale^2 of the pixels: grow to that share of the budget (the Gaussians
+        already there stay; growth resumes as the images get finer)."""
+        self.budget = max(1, int(self.full_budget * scale * scale))
 
     @torch.no_grad()
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:

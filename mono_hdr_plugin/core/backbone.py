@@ -135,6 +135,11 @@ class Backbone(torch.nn.Module):
         """
         self.max_steps = max_steps
 
+    def set_image_scale(self, scale: float) -> None:
+        """Told by the trainer when coarse-to-fine training (`--pyramid-levels`) moves to another level:
+        training images are now `scale` (1/2^k) of the full size a side. A backbone whose capacity
+        follows the training pixels (a 3DGS Gaussian budget) sizes it to them."""
+
     def parameter_groups(self) -> list[dict]:
         """Optimiser groups: dicts with "name", "params" and "lr" (Adam is used)."""
         return [{"name": "backbone", "params": list(self.parameters()), "lr": 1e-3}]

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Literal
 
-from mono_hdr_plugin.core.validation import POSITIVE, SEED, between
+from mono_hdr_plugin.core.validation import POSITIVE, SEED, at_least, between
 
 
 @dataclass
@@ -26,14 +26,19 @@ class DataConfig:
     """0, 1, 2 select t1, t3, t5 in the single-exposure protocol."""
     fixed_exposure: float | None = None
     """Exposure in seconds for the fixed protocol (must be one the data has)."""
+    resolution: int | None = None
+    """--scene only: render and photograph the studio scene at N x N pixels (default: its own 128;
+    each size is rendered once and cached). A --data folder keeps its size: shrink it with --downscale."""
     downscale: int = 1
-    """Integer factor to shrink images by (area averaging), 2 reproduces the paper's half_res."""
+    """Integer factor to shrink images by (area averaging; cameras' focal lengths and principal point
+    scale with them), 2 reproduces the paper's half_res."""
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
         "fixed_exposure": POSITIVE,
+        "resolution": at_least(8),
         "downscale": POSITIVE,
         "exposure_seed": SEED,
     }

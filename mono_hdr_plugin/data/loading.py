@@ -7,6 +7,7 @@ from pathlib import PurePosixPath
 import numpy as np
 import torch
 
+from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.validation import FlagError, check_flags
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
@@ -22,9 +23,14 @@ def captured_scene(config: DataConfig) -> CapturedScene:
     if config.data is not None and config.scene is not None:
         raise FlagError(f"--data {config.data} and --scene {config.scene} name two scenes: pass one of them")
     if config.data is not None:
+        if config.resolution is not None:
+            raise FlagError(
+                f"--resolution {config.resolution} sizes a --scene; the photos in --data {config.data} keep "
+                "their size: shrink them with --downscale"
+            )
         return read_layout(config.data, config.layout)
     if config.scene is not None:
-        return named_scene(config.scene, seed=config.exposure_seed)
+        return named_scene(config.scene, seed=config.exposure_seed, resolution=config.resolution)
     raise DatasetError(
         f"no scene given: pass --data FOLDER or --scene NAME (built-in scenes: {', '.join(scene_names())})"
     )
@@ -44,12 +50,18 @@ def downscale_image(image: np.ndarray, factor: int, label: str) -> np.ndarray:
     return blocks.mean(axis=(1, 3), dtype=np.float32)
 
 
+def downscaled_camera(camera: Camera, factor: int) -> Camera:
+    """The camera of an image downscaled by `factor` (downscale_image): focal lengths and principal point
+    divided by `factor`, the size the whole blocks (the remainder is cropped at the right and bottom)."""
+    if factor == 1:
+        return camera
+    return replace(camera.scaled(1.0 / factor), width=camera.width // factor, height=camera.height // factor)
+
+
 def _views(view: CapturedView, shots: list[Shot], factor: int, levels: list[float], notes: list[str]) -> list[View]:
     """The views of the chosen shots; HDR ground truth that carries no HDR information is left out
     (with a note naming its file), negative HDR ground truth refused."""
-    camera = view.camera
-    if factor > 1:  # downscale_image crops the remainder: the camera keeps the whole blocks only
-        camera = replace(camera.scaled(1.0 / factor), width=camera.width // factor, height=camera.height // factor)
+    camera = downscaled_camera(view.camera, factor)
     hdr = None
     if view.hdr is not None:
         label = str(getattr(view.hdr, "path", view.name))

@@ -18,8 +18,9 @@ class SceneSource:
     def names(self) -> list[str]:
         raise NotImplementedError
 
-    def captured_scene(self, name: str, seed: int) -> CapturedScene:
-        """Every photo of scene `name`; `seed` seeds whatever is random in the capture (sensor noise)."""
+    def captured_scene(self, name: str, seed: int, resolution: int | None = None) -> CapturedScene:
+        """Every photo of scene `name`; `seed` seeds whatever is random in the capture (sensor noise);
+        `resolution`: images of that many pixels a side (None: the scene's own size)."""
         raise NotImplementedError
 
 
@@ -37,11 +38,13 @@ def scene_names() -> list[str]:
     return [name for entry in SCENE_SOURCES.available().values() for name in entry.plugin.names()]
 
 
-def named_scene(name: str, seed: int = 0) -> CapturedScene:
-    """The scene `name` from the source that offers it."""
+def named_scene(name: str, seed: int = 0, resolution: int | None = None) -> CapturedScene:
+    """The scene `name` from the source that offers it (at `resolution` x `resolution` pixels if given)."""
     for entry in SCENE_SOURCES.available().values():
         if name in entry.plugin.names():
-            return entry.plugin.captured_scene(name, seed)
+            if resolution is None:  # a plugin source written before sizes existed takes two arguments
+                return entry.plugin.captured_scene(name, seed)
+            return entry.plugin.captured_scene(name, seed, resolution=resolution)
     names = scene_names()
     if not names:
         raise DatasetError(

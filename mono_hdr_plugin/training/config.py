@@ -51,6 +51,12 @@ class TrainConfig:
     none (LDR only), 0:1 HDR only (no LDR loss)."""
     eval_every: int = 0
     """Evaluate on the test views every N steps (0: only at the end)."""
+    pyramid_levels: int = 1
+    """Coarse-to-fine training: levels of an image pyramid (1: off; 3: train on the views at 1/4, then 1/2
+    a side, then full size). Cameras' intrinsics scale with the images; a 3DGS budget with the pixels."""
+    pyramid_share: float = 0.5
+    """With --pyramid-levels above 1: the share of the run trained below full size, split evenly among
+    the coarser levels, coarsest first."""
     checkpoint_every: int = 1000
     """Write OUT/checkpoints/latest.pt every N steps (and at the end)."""
     max_eval_views: int | None = None
@@ -74,6 +80,8 @@ class TrainConfig:
         "seed": SEED,
         "eval_every": NON_NEGATIVE,
         "checkpoint_every": at_least(1),
+        "pyramid_levels": between(1, 6),
+        "pyramid_share": between(0, 1, high_open=True),
         "max_eval_views": at_least(1),
         "nan_patience": at_least(1),
         "viewer_port": between(0, 65535),

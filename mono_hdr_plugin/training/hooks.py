@@ -41,10 +41,41 @@ class TrainingHook:
         pass
 
 
+def seconds_left(trainer: Trainer) -> float | None:
+    """Estimated seconds until training ends: the steps left (to --max-steps, or those that fit in what is
+    left of --max-seconds) at the mean step time so far, plus the evaluations still due under --eval-every
+    at the mean time of those measured. None before the first step."""
+    if trainer.step == 0 or trainer.train_seconds <= 0:
+        return None
+    per_step = trainer.train_seconds / trainer.step
+    training = max(trainer.run_length - trainer.step, 0) * per_step
+    if trainer.config.max_seconds is not None:
+        training = min(training, max(trainer.config.max_seconds - trainer.train_seconds, 0.0))
+    every, measured = trainer.config.eval_every, trainer.evaluation_seconds
+    if not (every and measured):
+        return training
+    last_step = trainer.step + round(training / per_step)
+    # EvaluateEvery runs at each multiple of --eval-every before the last step (the run scores itself at its end).
+    evaluations = max(math.ceil(last_step / every) - 1 - trainer.step // every, 0)
+    return training + evaluations * sum(measured) / len(measured)
+
+
+def duration_text(seconds: float | None) -> str:
+    """`42 s`, `4 min 05 s`, `1 h 05 min`; `?` when not known yet."""
+    if seconds is None:
+        return "?"
+    whole = round(seconds)
+    if whole < 60:
+        return f"{whole} s"
+    if whole < 3600:
+        return f"{whole // 60} min {whole % 60:02d} s"
+    return f"{whole // 3600} h {whole % 3600 // 60:02d} min"
+
+
 class ProgressBar(TrainingHook):
-    """A rich progress bar with the loss and the training-view LDR PSNR; where the output is not a
-    terminal (a log file, CI), where rich would draw nothing until the end, a plain line every
-    LOG_EVERY_SECONDS instead."""
+    """A rich progress bar with the loss, the training-view LDR PSNR and the time left (seconds_left);
+    where the output is not a terminal (a log file, CI), where rich would draw nothing until the end, a
+    plain line every LOG_EVERY_SECONDS instead."""
 
     LOG_EVERY_SECONDS = 30.0
 
@@ -55,6 +86,7 @@ class ProgressBar(TrainingHook):
             MofNCompleteColumn(),
             TextColumn("loss {task.fields[loss]:.4f}  LDR PSNR {task.fields[psnr]:.2f}"),
             TimeElapsedColumn(),
+            TextColumn("about {task.fields[left]} left"),
             console=console,
         )
         self.task = self.progress.add_task(
@@ -63,6 +95,7 @@ class ProgressBar(TrainingHook):
             completed=trainer.step,
             loss=math.nan,
             psnr=math.nan,
+            left=duration_text(seconds_left(trainer)),
         )
         self.logged_at = time.monotonic()
         if console.is_terminal:
@@ -71,14 +104,20 @@ class ProgressBar(TrainingHook):
             console.print(f"training {trainer.backbone_name}/{trainer.pipeline.method_name} from step {trainer.step}")
 
     def after_step(self, trainer: Trainer, record: dict[str, Any]) -> None:
+        left = duration_text(seconds_left(trainer))
         self.progress.update(
-            self.task, completed=trainer.step, total=trainer.run_length, loss=record["loss"], psnr=record["ldr_psnr"]
+            self.task,
+            completed=trainer.step,
+            total=trainer.run_length,
+            loss=record["loss"],
+            psnr=record["ldr_psnr"],
+            left=left,
         )
         if not console.is_terminal and time.monotonic() - self.logged_at >= self.LOG_EVERY_SECONDS:
             self.logged_at = time.monotonic()
             console.print(
                 f"step {trainer.step}/{trainer.run_length}: loss {record['loss']:.4f}, "
-                f"LDR PSNR {record['ldr_psnr']:.2f} dB, {trainer.train_seconds:.0f} s"
+                f"LDR PSNR {record['ldr_psnr']:.2f} dB, {trainer.train_seconds:.0f} s, about {left} left"
             )
 
     def on_end(self, trainer: Trainer) -> None:

@@ -124,6 +124,9 @@ class Pipeline(nn.Module):
     def set_run_length(self, steps: int) -> None:
         self.backbone.set_run_length(steps)
 
+    def set_image_scale(self, scale: float) -> None:
+        self.backbone.set_image_scale(scale)
+
     @property
     def renders_any_exposure(self) -> bool:
         """Whether LDR renders follow the requested exposure: methods that take exposure, and any

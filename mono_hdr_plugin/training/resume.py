@@ -43,6 +43,7 @@ DATA_FLAGS = {
     "--protocol",
     "--exposure-index",
     "--fixed-exposure",
+    "--resolution",
     "--downscale",
     "--exposure-seed",
 }

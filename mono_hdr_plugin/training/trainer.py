@@ -52,6 +52,7 @@ from mono_hdr_plugin.training.hooks import (
     interrupt_requests,
 )
 from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.pyramid import ImagePyramid
 from mono_hdr_plugin.training.resume import (
     DATA_FLAGS,
     ResumeMismatch,
@@ -102,9 +103,14 @@ class Trainer:
             group["base_lr"] = group["lr"]
         self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
+        self.pyramid = ImagePyramid(scene.train, config.pyramid_levels, config.pyramid_share)
+        self.image_level: int | None = None
+        """Pyramid level the backbone was last told (None: not yet; a resumed run tells it at its first step)."""
         self.view_order: list[int] = []
         self.step = 0
         self.train_seconds = 0.0
+        self.evaluation_seconds: list[float] = []
+        """How long each evaluation during this process took (the time left counts the ones to come)."""
         self.recent_step_seconds: deque[float] = deque(maxlen=RUN_LENGTH_WINDOW)
         self.history: list[dict] = []
         self.saved_step: int | None = None
@@ -167,6 +173,14 @@ class Trainer:
             Targets(ldr=view.image[rows, cols], exposure=view.exposure, hdr=None if hdr is None else hdr[rows, cols]),
         )
 
+    def _training_view(self, index: int) -> View:
+        """Training view `index` at the pyramid level of this step (full size without --pyramid-levels)."""
+        level = self.pyramid.level_at(self.step, self.run_length)
+        if level != self.image_level:
+            self.pipeline.set_image_scale(0.5**level)
+            self.image_level = level
+        return self.pyramid.view(index, level)
+
     def _bad_tensors(self, loss: torch.Tensor) -> list[str]:
         bad = [] if torch.isfinite(loss) else ["loss"]
         for group in self.optimizer.param_groups:
@@ -179,7 +193,7 @@ class Trainer:
         """One optimiser step on one training view; returns the loss terms (floats)."""
         started = time.perf_counter()
         index = self._next_view()
-        view = self.scene.train[index]
+        view = self._training_view(index)
         camera, targets = self._batch(view, self.hdr_views[index])
         for group in self.optimizer.param_groups:
             group["lr"] = self.pipeline.learning_rate(group, self.step)
@@ -291,6 +305,7 @@ class Trainer:
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
         """Test-view metrics of the current model (eval mode, HDR calibrated), with the step and
         training seconds."""
+        started = time.perf_counter()
         self.calibrate()
         metrics = evaluate(
             self.pipeline,
@@ -298,6 +313,7 @@ class Trainer:
             self.config.max_eval_views,
             render_dir=self.config.out / "renders" if save_renders else None,
         )
+        self.evaluation_seconds.append(time.perf_counter() - started)
         return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 
     # -------------------------------------------------------------- checkpoints

@@ -1,10 +1,12 @@
 """Training's progress where the output is not a terminal (a log file, CI): plain lines, not silence."""
 
+import pytest
+from helpers import FakeClock
 from known_render import KnownRenderConfig
 from test_calibration import known_scene
 
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.hooks import ProgressBar
+from mono_hdr_plugin.training.hooks import EvaluateEvery, ProgressBar, TrainingHook, duration_text, seconds_left
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -22,3 +24,72 @@ class TestProgressInALog:
             "step 2/3",
             "step 3/3",
         ]
+
+
+class TestTimeLeft:
+    """The time left, under a fake clock: every step takes 0.5 s, the clock advancing 0.5 s a read."""
+
+    @pytest.fixture
+    def clock(self, monkeypatch):
+        import mono_hdr_plugin.training.trainer as trainer_module
+
+        clock = FakeClock(0.5)
+        monkeypatch.setattr(trainer_module.time, "perf_counter", clock.perf_counter)
+        self.monkeypatch = monkeypatch
+        return clock
+
+    def run(self, tmp_path, clock, evaluation_seconds: float = 0.0, **flags) -> list[float | None]:
+        """seconds_left after every step of a run with `flags`; an evaluation takes 0.5 + `evaluation_seconds`."""
+        import mono_hdr_plugin.training.trainer as trainer_module
+
+        evaluate = trainer_module.evaluate
+
+        def slow_evaluate(*args, **kwargs):
+            clock.now += evaluation_seconds
+            return evaluate(*args, **kwargs)
+
+        config = train_config_for(KnownRenderConfig)(
+            backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=True, save_renders=False, **flags
+        )
+        trainer = Trainer(config, "known-render", known_scene())
+        self.monkeypatch.setattr(trainer_module, "evaluate", slow_evaluate)
+        left = Recorder()
+        hooks = [EvaluateEvery(config.eval_every)] if config.eval_every else []
+        trainer.fit([*hooks, left])
+        return left.values
+
+    def test_max_steps(self, tmp_path, clock):
+        assert self.run(tmp_path, clock, max_steps=6) == pytest.approx([2.5, 2.0, 1.5, 1.0, 0.5, 0.0])
+
+    def test_evaluations_still_due_count(self, tmp_path, clock):
+        """--eval-every 2 of 7 steps evaluates at steps 2, 4 and 6; each evaluation takes 3.5 s."""
+        left = self.run(tmp_path, clock, evaluation_seconds=3.0, max_steps=7, eval_every=2)
+        # before the first evaluation its cost is unknown; after it, the ones at 4 and 6, then at 6, then none
+        assert left == pytest.approx([3.0, 2.5 + 2 * 3.5, 2.0 + 2 * 3.5, 1.5 + 3.5, 1.0 + 3.5, 0.5, 0.0])
+
+    def test_max_seconds(self, tmp_path, clock):
+        assert self.run(tmp_path, clock, max_seconds=4.0) == pytest.approx([3.5, 3.0, 2.5, 2.0, 1.5, 1.0, 0.5, 0.0])
+
+    def test_both_limits_whichever_first(self, tmp_path, clock):
+        assert self.run(tmp_path, clock, max_steps=3, max_seconds=100.0) == pytest.approx([1.0, 0.5, 0.0])
+
+    def test_the_log_line_says_it(self, tmp_path, capsys, monkeypatch, clock):
+        monkeypatch.setattr(ProgressBar, "LOG_EVERY_SECONDS", 0.0)
+        config = train_config_for(KnownRenderConfig)(
+            backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=False, max_steps=3, save_renders=False
+        )
+        Trainer(config, "known-render", known_scene()).fit([ProgressBar()])
+        lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("step ")]
+        assert [line.rsplit(", ", 1)[1] for line in lines] == ["about 1 s left", "about 0 s left", "about 0 s left"]
+
+    @pytest.mark.parametrize("seconds, text", [(None, "?"), (42.4, "42 s"), (245, "4 min 05 s"), (3900, "1 h 05 min")])
+    def test_duration_text(self, seconds, text):
+        assert duration_text(seconds) == text
+
+
+class Recorder(TrainingHook):
+    def __init__(self):
+        self.values: list[float | None] = []
+
+    def after_step(self, trainer, record) -> None:
+        self.values.append(seconds_left(trainer))

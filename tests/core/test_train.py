@@ -6,6 +6,7 @@ import math
 import pytest
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 import torch
+from helpers import FakeClock
 
 from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
@@ -162,17 +163,6 @@ class TestSceneExtent:
         info = voxel_scene.scene_info()
         centers = torch.stack([c.center for c in info.train_cameras])
         assert info.extent == pytest.approx(1.1 * float((centers - centers.mean(0)).norm(dim=-1).max()))
-
-
-class FakeClock:
-    """perf_counter that advances a fixed amount per call: a step of the trainer reads it twice."""
-
-    def __init__(self, seconds_per_call: float):
-        self.now, self.seconds_per_call = 0.0, seconds_per_call
-
-    def perf_counter(self) -> float:
-        self.now += self.seconds_per_call
-        return self.now
 
 
 class TestTimeBudget:

@@ -10,6 +10,7 @@ import pytest
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 from cli_driver import run_cli, train_args, write_driver
 from hard_scenes import make_scene, make_trainer
+from helpers import FakeClock
 
 from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.core.validation import FlagError
@@ -117,17 +118,6 @@ def test_resume_at_max_steps_trains_nothing_says_so_and_keeps_the_checkpoint(run
 
 
 # ---------------------------------------------------------------------------- --max-seconds alone
-class FakeClock:
-    """perf_counter that advances a fixed amount per call: a step of the trainer reads it twice."""
-
-    def __init__(self, seconds_per_call: float):
-        self.now, self.seconds_per_call = 0.0, seconds_per_call
-
-    def perf_counter(self) -> float:
-        self.now += self.seconds_per_call
-        return self.now
-
-
 @pytest.mark.parametrize(
     "max_steps,max_seconds,steps",
     [

@@ -37,6 +37,9 @@ class BenchCurvesConfig:
     """BACKBONE=PRESET pairs (`mono-hdr backbones` lists presets); others run their default preset."""
     scenes: tuple[str, ...] = ("demo",)
     """Studio scenes."""
+    resolution: int | None = None
+    """Studio scene size, N x N pixels (default: the scenes' own 128; a size not yet rendered is rendered
+    first, once, cached)."""
     exposure_index: int = 1
     """0, 1, 2: the single training exposure t1, t3, t5."""
     budget_seconds: float | None = None
@@ -53,6 +56,7 @@ class BenchCurvesConfig:
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
+        "resolution": at_least(8),
         "budget_seconds": POSITIVE,
         "budget_steps": at_least(1),
         "eval_points": at_least(1),
@@ -67,7 +71,14 @@ def curve_specs(config: BenchCurvesConfig) -> list[RunSpec]:
     backbones = config.backbones or tuple(paper_backbones().values())
     presets = parse_presets(config.presets)
     return [
-        RunSpec(backbone=b, method=m, preset=presets.get(b), scene=s, exposure_index=config.exposure_index)
+        RunSpec(
+            backbone=b,
+            method=m,
+            preset=presets.get(b),
+            scene=s,
+            exposure_index=config.exposure_index,
+            resolution=config.resolution,
+        )
         for s in config.scenes
         for b in backbones
         for m in config.methods

@@ -74,10 +74,14 @@ class RunSpec:
     seed: int = 0
     overrides: tuple[tuple[str, Any], ...] = ()
     """(dotted config path, value) pairs applied on top of the preset: "backbone.lr_sh_dc", "hdr.converter_lr"."""
+    resolution: int | None = None
+    """Studio scene size, N x N pixels (None: the scene's own 128)."""
 
     @property
     def key(self) -> str:
-        return "|".join(str(v) for v in dataclasses.astuple(self))
+        """The row's identity; a row at the scene's own size keeps the key it had before sizes existed."""
+        *fields, resolution = dataclasses.astuple(self)
+        return "|".join(str(v) for v in fields) + ("" if resolution is None else f"|{resolution}px")
 
 
 @dataclass(frozen=True)
@@ -157,11 +161,11 @@ def peak_memory_mib() -> float:
 
 
 @functools.lru_cache(maxsize=8)
-def cached_scene(name: str, exposure_index: int) -> SceneData:
+def cached_scene(name: str, exposure_index: int, resolution: int | None = None) -> SceneData:
     """Scenes loaded once per process for all the rows that use them."""
     from mono_hdr_plugin.data.loading import load_scene
 
-    return load_scene(DataConfig(scene=name, exposure_index=exposure_index))
+    return load_scene(DataConfig(scene=name, exposure_index=exposure_index, resolution=resolution))
 
 
 def parse_override(text: str) -> tuple[str, Any]:
@@ -209,7 +213,7 @@ def build_run(spec: RunSpec, scene: SceneData, out: Path, budget: RunBudget) -> 
         max_eval_views=budget.max_eval_views,
         hdr_view_ratio=spec.hdr_view_ratio,
         seed=spec.seed,
-        data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index),
+        data=DataConfig(scene=spec.scene, exposure_index=spec.exposure_index, resolution=spec.resolution),
         hdr=MethodConfig(method=spec.method, use_ldr_loss=use_ldr, use_hdr_loss=use_hdr, use_h2l_loss=use_h2l),
     )
     for path, value in spec.overrides:
@@ -271,7 +275,7 @@ def run_row(spec: RunSpec, budget: RunBudget, out: str, threads: int | None = No
     if threads is not None:
         torch.set_num_threads(threads)
     try:
-        trainer = build_run(spec, cached_scene(spec.scene, spec.exposure_index), Path(out), budget)
+        trainer = build_run(spec, cached_scene(spec.scene, spec.exposure_index, spec.resolution), Path(out), budget)
         curve = EvaluateAlong(budget.eval_points)
         trainer.fit([curve])
         fps_ldr, fps_ldr_hdr = render_fps(trainer)

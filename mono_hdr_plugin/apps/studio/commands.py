@@ -5,15 +5,16 @@ from pathlib import Path
 from typing import ClassVar
 
 from mono_hdr_plugin.apps.studio.render import (
-    RENDER_MINUTES,
     cache_dir,
     dynamic_range,
+    minutes_text,
     render_cache_path,
+    render_minutes,
     render_scene,
 )
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
-from mono_hdr_plugin.core.validation import SEED, FlagError
+from mono_hdr_plugin.core.validation import SEED, FlagError, at_least
 
 
 @dataclass
@@ -29,10 +30,13 @@ class SynthConfig:
     hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
     seed: int = 0
     """Seed of the simulated sensor noise."""
+    resolution: int | None = None
+    """Render and photograph at N x N pixels (default: the scene's own 128; each size is rendered once and
+    cached; the cameras keep their field of view)."""
     overwrite: bool = False
     """Replace a dataset an earlier `mono-hdr synth` wrote in --out instead of refusing."""
 
-    flag_rules: ClassVar = {"seed": SEED}
+    flag_rules: ClassVar = {"seed": SEED, "resolution": at_least(8)}
 
 
 @dataclass
@@ -41,7 +45,12 @@ class ScenesConfig:
 
     render: bool = True
     """Measure the dynamic range and the seed agreement from the renders (cached; a scene not yet
-    rendered takes about 2 minutes on 2 cores, once); --no-render lists at once without them."""
+    rendered takes about 2 minutes on 2 cores at 128 px, once, and time grows with the pixels);
+    --no-render lists at once without them."""
+    resolution: int | None = None
+    """List (and render) the scenes at N x N pixels (default: their own 128)."""
+
+    flag_rules: ClassVar = {"resolution": at_least(8)}
 
 
 def png_bits(scene: StudioScene) -> int:
@@ -60,18 +69,25 @@ def synth(config: SynthConfig) -> Path:
     get_scene(config.scene)
     # The whole folder is the dataset: an earlier one of another layout left beside it would be detected first.
     with claim_output(config.out, "synth", None, overwrite=config.overwrite) as output:
-        scene = get_scene(config.scene)
+        scene = get_scene(config.scene, config.resolution)
         captured = studio_captured_scene(scene, seed=config.seed)
         output.clear_previous()
         write_layout(captured, config.out, config.layout, bits=png_bits(scene))
     return config.out
 
 
-def list_scenes(render: bool = True) -> list[dict]:
+def scenes_at(resolution: int | None) -> list[StudioScene]:
+    """Every built-in scene, at `resolution` x `resolution` pixels if given."""
+    from mono_hdr_plugin.apps.studio.dataset import get_scene
+
+    return [get_scene(name, resolution) for name in SCENES]
+
+
+def list_scenes(render: bool = True, resolution: int | None = None) -> list[dict]:
     """One row per scene: name, resolution, views, spp, effects and, when rendered, the dynamic
     range and how well two renders with different seeds agree (worst view, dB; None unless rendered)."""
     rows = []
-    for scene in SCENES.values():
+    for scene in scenes_at(resolution):
         row = {
             "name": scene.name,
             "resolution": f"{scene.width}x{scene.height}",
@@ -115,16 +131,18 @@ def list_scenes_command(config: ScenesConfig) -> None:
         "description",
     ):
         table.add_column(column)
-    missing = [scene.name for scene in SCENES.values() if not render_cache_path(scene).is_file()]
+    missing = [scene for scene in scenes_at(config.resolution) if not render_cache_path(scene).is_file()]
     if config.render and missing:
+        minutes = sum(render_minutes(scene) for scene in missing)
         Console(stderr=True, soft_wrap=True).print(
-            f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet ({', '.join(missing)}): "
-            f"rendering them first, about {RENDER_MINUTES * len(missing)} minutes on 2 cores, once (cached in "
+            f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet at this size "
+            f"({', '.join(scene.name for scene in missing)}): rendering them first, {minutes_text(minutes)} on 2 "
+            "cores, once (cached in "
             f"{cache_dir() / 'studio'}); `mono-hdr scenes --no-render` lists them now without the measured columns",
             markup=False,
             highlight=False,
         )
-    for row in list_scenes(config.render):
+    for row in list_scenes(config.render, config.resolution):
         if row["dynamic_range"] is None:
             ratio = agreement = "not rendered"
         else:

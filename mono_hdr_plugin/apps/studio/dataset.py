@@ -16,11 +16,13 @@ from mono_hdr_plugin.data.errors import DatasetError
 MAX_INIT_POINTS = 10_000
 
 
-def get_scene(name: str) -> StudioScene:
-    """The built-in scene called `name`."""
+def get_scene(name: str, resolution: int | None = None) -> StudioScene:
+    """The built-in scene called `name`, at `resolution` x `resolution` pixels if given (the cameras keep
+    their field of view: the focal length scales with the image; the render cache keeps each size apart)."""
     if name not in SCENES:
         raise DatasetError(f"unknown scene {name!r}; choose one of {sorted(SCENES)} (mono-hdr scenes)")
-    return SCENES[name]
+    scene = SCENES[name]
+    return scene if resolution is None else replace(scene, resolution=(resolution, resolution))
 
 
 def photo_seed(seed: int, view: int, exposure_index: int) -> int:

@@ -169,7 +169,21 @@ def luminance(radiance: np.ndarray) -> np.ndarray:
 
 
 RENDER_MINUTES = 2
-"""About how long one scene takes to render on 2 cores (six took 11 minutes), for the notice."""
+"""About how long one scene takes to render at 128 x 128 on 2 cores (six took 11 minutes), for the notice."""
+
+
+def render_minutes(scene: StudioScene) -> float:
+    """About how long rendering `scene` takes on 2 cores: path tracing costs the same per pixel."""
+    return RENDER_MINUTES * scene.width * scene.height / (128 * 128)
+
+
+def minutes_text(minutes: float) -> str:
+    """`under a minute`, `about 2 minutes`, `about 32 minutes`, `about 3.4 hours`."""
+    if minutes < 1:
+        return "under a minute"
+    if minutes >= 90:
+        return f"about {minutes / 60:.1f} hours"
+    return f"about {round(minutes)} minute{'' if round(minutes) == 1 else 's'}"
 
 
 def render_cache_path(scene: StudioScene) -> Path:
@@ -189,8 +203,9 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     console = Console(stderr=True, soft_wrap=True)
     cameras = scene.cameras()
     console.print(
-        f"rendering studio scene {scene.name} with Mitsuba ({len(cameras)} views x 2 x {scene.spp} spp, about "
-        f"{RENDER_MINUTES} minutes on 2 cores)" + (f"; cached in {path.parent} for next time" if use_cache else ""),
+        f"rendering studio scene {scene.name} at {scene.width}x{scene.height} with Mitsuba ({len(cameras)} views x 2 "
+        f"x {scene.spp} spp, {minutes_text(render_minutes(scene))} on 2 cores)"
+        + (f"; cached in {path.parent} for next time" if use_cache else ""),
         markup=False,
         highlight=False,
     )

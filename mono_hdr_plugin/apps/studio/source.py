@@ -11,10 +11,10 @@ class StudioScenes(SceneSource):
     def names(self) -> list[str]:
         return list(SCENES)
 
-    def captured_scene(self, name: str, seed: int) -> CapturedScene:
+    def captured_scene(self, name: str, seed: int, resolution: int | None = None) -> CapturedScene:
         from mono_hdr_plugin.apps.studio.dataset import get_scene, studio_captured_scene
 
-        return studio_captured_scene(get_scene(name), seed=seed)
+        return studio_captured_scene(get_scene(name, resolution), seed=seed)
 
 
 STUDIO_SCENES = StudioScenes()

@@ -1,0 +1,73 @@
+"""Coarse-to-fine training (`--pyramid-levels`): the training views downscaled by 2^k early in the run.
+
+A step at level k renders 4^k times fewer pixels, so the early steps, where the model learns the
+coarse layout and the HDR branch its first exposure mapping, cost a fraction of a full-size one.
+The level is a function of the step and the run length alone, so a resumed run continues at the
+level the interrupted one would have been at. Each level's images are the area mean of the full
+ones (data.loading.downscale_image, as --downscale) and its cameras the matching intrinsics.
+"""
+
+from dataclasses import replace
+
+import torch
+
+from mono_hdr_plugin.core.validation import FlagError
+from mono_hdr_plugin.data.dataset import View
+from mono_hdr_plugin.data.loading import downscale_image, downscaled_camera
+
+MIN_LEVEL_SIDE = 16
+"""Smallest image side a level may have: the D-SSIM loss needs 11 px windows, and fewer pixels teach little."""
+
+
+def pyramid_level(step: int, run_length: int, levels: int, coarse_share: float) -> int:
+    """Level of `step` (0: full size, k: 1/2^k a side): the first `coarse_share` of the run is split
+    evenly among levels-1 .. 1, coarsest first; the rest trains at full size."""
+    coarse_steps = coarse_share * run_length
+    if levels <= 1 or step >= coarse_steps:
+        return 0
+    return levels - 1 - int(step * (levels - 1) // coarse_steps)
+
+
+def downscaled_view(view: View, factor: int) -> View:
+    """`view` with its photo and HDR area-averaged by `factor` and its camera scaled to match."""
+    if factor == 1:
+        return view
+
+    def shrink(image: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(downscale_image(image.numpy(), factor, view.name or str(view.view_id)))
+
+    return replace(
+        view,
+        camera=downscaled_camera(view.camera, factor),
+        image=shrink(view.image),
+        hdr=None if view.hdr is None else shrink(view.hdr),
+    )
+
+
+class ImagePyramid:
+    """The training views at the level a step trains at; only the current level's images are held."""
+
+    def __init__(self, views: list[View], levels: int, coarse_share: float):
+        side = min((min(view.camera.width, view.camera.height) for view in views), default=0)
+        if levels > 1 and side // 2 ** (levels - 1) < MIN_LEVEL_SIDE:
+            most = max(1, (side // MIN_LEVEL_SIDE).bit_length())
+            raise FlagError(
+                f"--pyramid-levels {levels}: the coarsest level of these {side} px images would be "
+                f"{side // 2 ** (levels - 1)} px, under {MIN_LEVEL_SIDE}; use at most --pyramid-levels {most}"
+            )
+        self.views, self.levels, self.coarse_share = views, levels, coarse_share
+        self.level = 0
+        self.level_views: dict[int, View] = {}
+
+    def level_at(self, step: int, run_length: int) -> int:
+        return pyramid_level(step, run_length, self.levels, self.coarse_share)
+
+    def view(self, index: int, level: int) -> View:
+        """Training view `index` at `level` (made on first use; a new level drops the previous one's)."""
+        if level != self.level:
+            self.level, self.level_views = level, {}
+        if level == 0:
+            return self.views[index]
+        if index not in self.level_views:
+            self.level_views[index] = downscaled_view(self.views[index], 2**level)
+        return self.level_views[index]

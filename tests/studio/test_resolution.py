@@ -1,0 +1,68 @@
+"""Studio scenes at any size: `--resolution N` for scenes, synth, train --scene and the benchmarks."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, curve_specs
+from mono_hdr_plugin.apps.bench.runs import RunSpec
+from mono_hdr_plugin.apps.studio.commands import SynthConfig, list_scenes, synth
+from mono_hdr_plugin.apps.studio.dataset import get_scene
+from mono_hdr_plugin.apps.studio.render import render_cache_path, render_minutes
+from mono_hdr_plugin.core.validation import FlagError
+from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.loading import load_scene
+
+
+def test_cameras_keep_their_field_of_view():
+    small, large = get_scene("demo", 16), get_scene("demo", 48)
+    point = torch.tensor([[0.1, 0.2, 0.3]])
+    for a, b in zip(small.cameras(), large.cameras()):
+        assert (b.width, b.height) == (48, 48) and b.fx == pytest.approx(3 * a.fx)
+        assert 2 * math.degrees(math.atan(24 / b.fx)) == pytest.approx(small.rig.fov_deg)
+        torch.testing.assert_close(b.project(point)[0], 3 * a.project(point)[0], atol=1e-4, rtol=0)
+        torch.testing.assert_close(b.c2w, a.c2w)
+
+
+def test_each_size_is_cached_apart():
+    assert render_cache_path(get_scene("demo", 16)) != render_cache_path(get_scene("demo", 32))
+    assert get_scene("demo") is get_scene("demo", None)
+
+
+def test_render_time_notice_scales_with_the_pixels():
+    assert render_minutes(get_scene("demo", 256)) == pytest.approx(4 * render_minutes(get_scene("demo", 128)))
+    assert render_minutes(get_scene("demo", 128)) == pytest.approx(2)
+
+
+def test_train_scene_at_a_size():
+    data = load_scene(DataConfig(scene="demo", resolution=16))
+    view = data.train[0]
+    assert view.image.shape == (16, 16, 3) and view.hdr.shape == (16, 16, 3)
+    assert (view.camera.width, view.camera.height) == (16, 16)
+    assert load_scene(DataConfig(scene="demo")).train[0].image.shape == (24, 24, 3)  # the (tiny) default
+
+
+def test_resolution_is_for_scenes_only(tmp_path):
+    with pytest.raises(FlagError, match="--resolution 16 sizes a --scene.*--downscale"):
+        load_scene(DataConfig(data=tmp_path, resolution=16))
+
+
+def test_synth_writes_the_size(tmp_path):
+    out = synth(SynthConfig(scene="demo", out=tmp_path / "synth", resolution=16))
+    data = load_scene(DataConfig(data=out))
+    assert data.train[0].image.shape == (16, 16, 3)
+    np.testing.assert_allclose(data.train[0].camera.fx, get_scene("demo", 16).cameras()[0].fx, rtol=1e-5)
+
+
+def test_scenes_lists_the_size():
+    rows = list_scenes(render=False, resolution=40)
+    assert rows and all(row["resolution"] == "40x40" for row in rows)
+
+
+def test_bench_specs_carry_the_size():
+    specs = curve_specs(BenchCurvesConfig(backbones=("gs",), methods=("mono",), resolution=256))
+    assert [spec.resolution for spec in specs] == [256]
+    assert specs[0].key.endswith("|256px")
+    assert RunSpec("gs").key == "gs|mono|None|demo|1|1:1|(True, True, True)|0|()"  # rows stored before keep theirs
