@@ -232,7 +232,8 @@ def test_scenes_on_a_fresh_machine_says_it_renders_before_rendering(fresh_cache,
     expected = "under a minute" if minutes < 1 else f"about {round(minutes)} minutes"
     assert f"{expected} on 2 cores, once (cached in {fresh_cache / 'studio'})" in notice
     assert "`mono-hdr scenes --no-render` lists them now" in notice
-    assert first.startswith(f"rendering studio scene {next(iter(SCENES))} with Mitsuba (")
+    scene = next(iter(SCENES.values()))
+    assert first.startswith(f"rendering studio scene {scene.name} at {scene.width}x{scene.height} with Mitsuba (")
     assert f"cached in {fresh_cache / 'studio'} for next time" in first and not rest
 
 
