@@ -327,7 +327,7 @@ def test_synth_replaces_its_own_dataset_without_leaving_the_old_layout(tmp_path,
     from mono_hdr_plugin.apps.studio import dataset as studio_dataset
     from mono_hdr_plugin.data.layouts import detect_layout
 
-    monkeypatch.setattr(studio_dataset, "get_scene", lambda name: tiny_demo)
+    monkeypatch.setattr(studio_dataset, "get_scene", lambda name, resolution=None: tiny_demo)
     out = tmp_path / "synth"
     main(["synth", "--out", str(out), "--layout", "hdr-gs"])
     with pytest.raises(OutputError, match="earlier `mono-hdr synth`.*pass --overwrite"):
