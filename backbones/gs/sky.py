@@ -64,8 +64,9 @@ def random_points_in_view(count: int, low: Tensor, high: Tensor, cameras: list[C
     """`count` points uniform in the box [low, high] that some training camera sees (in its image,
     beyond its near plane): in an unbounded scene the box reaches behind the cameras, and points
     no view sees never get a gradient to move them. Falls back to the box when no camera sees it."""
-    kept, drawn = [], 0
-    while sum(len(k) for k in kept) < count and drawn < 64 * count:
+    kept: list[Tensor] = []
+    drawn = 0
+    while sum(k.shape[0] for k in kept) < count and drawn < 64 * count:
         candidates = low + torch.rand(4 * count, 3) * (high - low)
         drawn += candidates.shape[0]
         seen = torch.zeros(candidates.shape[0], dtype=torch.bool)

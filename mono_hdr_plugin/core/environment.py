@@ -65,6 +65,7 @@ class EnvironmentMap(nn.Module):
             raise ValueError(
                 f"environment map: width {width} must be even and leave >= 4 texels at each of {levels} levels"
             )
+        self.frame: Tensor
         self.register_buffer("frame", sky_frame(up))
         widths = [width >> (2 * level) for level in range(levels)]
         # All of the initial value in the coarsest level: the finer ones start as pure detail (zero).
