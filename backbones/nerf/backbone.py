@@ -13,7 +13,7 @@ from torch import Tensor
 
 from backbones.nerf._extension import load_extension
 from backbones.nerf.config import GridFieldConfig, MlpFieldConfig, NerfConfig
-from backbones.nerf.fields import GridRadianceField, MlpRadianceField, OccupancyGrid
+from backbones.nerf.fields import GridRadianceField, MlpRadianceField, OccupancyGrid, bounded_logit
 from backbones.nerf.kernels import march_rays
 from backbones.nerf.rendering import compositing_weights, make_composite, make_packed_composite, sample_deltas
 from backbones.nerf.sampling import ray_segments, resample_occupied, sample_pdf, sample_stratified
@@ -484,12 +484,13 @@ class NerfBackbone(Backbone):
         }
         composite = make_packed_composite(kept_weights, ray_indices, covered, output_shape, self.background)
         colors = F.softplus(raw_color) if field.color_activation == "softplus" else torch.sigmoid(raw_color)
+        bound = field.l2h_input_bound if self.contracted else 0.0  # interiors' lights live beyond it
         return LdrFeatures(
             colors=colors,
             raw_colors=raw_color,
             composite=composite,
             extras=extras,
-            l2h_inputs=raw_color if field.l2h_input == "raw" else None,
+            l2h_inputs=bounded_logit(raw_color, bound) if field.l2h_input == "raw" else None,
         )
 
     @staticmethod

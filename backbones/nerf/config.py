@@ -98,6 +98,14 @@ class GridFieldConfig:
     the sigmoid's gradient vanishes, so the HDR loss cannot lift a light above the wall through
     it; through the logit it can. Measured on the built-in scenes: docs/nerf_profile.md, "L2H-CC on
     the logit"."""
+    l2h_input_bound: float = dataclasses.field(default=12.0, metadata={ABSENT_IN_SAVED_CONFIG: 0.0})
+    """In an unbounded scene (the contraction on) with l2h_input = raw: L2H-CC reads bound *
+    tanh(logit / bound), the logit itself up to a few units and never beyond the bound (0: the
+    logit as it is, as in bounded scenes). A sigmoid of 12 is 1 - 6e-6, so a logit beyond it is
+    invisible in LDR; unbounded, a floater whose logit drifted to 200 was lifted to 1000x the sun
+    and became the divisor of L_hdr's own-max normalisation. Bounded scenes keep the logit: the
+    demo's bulb is drawn by logits of 20-33, and bounded at 12 its HDR peak fell from 0.85 to 0.28
+    of the truth (docs/outdoor.md, "NeRF: the brightest pixel in every batch, a bounded logit")."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
     density_scale: float = 32.0
@@ -167,6 +175,7 @@ class GridFieldConfig:
         "importance_samples": NON_NEGATIVE,
         "early_stop_transmittance": FRACTION,
         "min_sample_weight": NON_NEGATIVE,
+        "l2h_input_bound": NON_NEGATIVE,
         "occupancy_resolution": at_least(1),
         "occupancy_update_every": at_least(1),
         "occupancy_decay": between(0, 1, low_open=True),

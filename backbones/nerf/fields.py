@@ -43,6 +43,12 @@ def activate_density(raw: Tensor, activation: DensityActivation) -> Tensor:
     return F.softplus(raw)
 
 
+def bounded_logit(logit: Tensor, bound: float) -> Tensor:
+    """bound * tanh(logit / bound): the logit where it is small against the bound, never beyond it
+    (bound 0: the logit unchanged). What L2H-CC reads per sample (GridFieldConfig.l2h_input_bound)."""
+    return logit if bound == 0 else bound * torch.tanh(logit / bound)
+
+
 class MlpRadianceField(nn.Module):
     """The official NeRF MLP: depth x width ReLU layers with one skip, view-dependent colour head."""
 

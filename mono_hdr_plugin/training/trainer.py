@@ -29,6 +29,7 @@ from mono_hdr_plugin.data.errors import os_error_line
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.outputs import OutputError, claim_output
 from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, Targets
+from mono_hdr_plugin.training.batches import training_batch
 from mono_hdr_plugin.training.calibration import fit_radiance_calibration
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mono_hdr_plugin.training.config import (
@@ -160,18 +161,7 @@ class Trainer:
         return self.view_order.pop()
 
     def _batch(self, view: View, use_hdr: bool) -> tuple[Camera, Targets]:
-        hdr = view.hdr if use_hdr else None
-        batch_size = self.backbone.pixel_batch
-        if batch_size is None:
-            return view.camera, Targets(ldr=view.image, exposure=view.exposure, hdr=hdr)
-        height, width = view.camera.height, view.camera.width
-        flat = torch.randint(0, height * width, (batch_size,), generator=self.generator)
-        rows, cols = flat // width, flat % width
-        pixels = torch.stack([cols.float() + 0.5, rows.float() + 0.5], -1)
-        return (
-            view.camera.with_pixels(pixels),
-            Targets(ldr=view.image[rows, cols], exposure=view.exposure, hdr=None if hdr is None else hdr[rows, cols]),
-        )
+        return training_batch(view, self.backbone.pixel_batch, use_hdr, self.generator)
 
     def _training_view(self, index: int) -> View:
         """Training view `index` at the pyramid level of this step (full size without --pyramid-levels)."""

@@ -112,6 +112,20 @@ class TestPixelBatches:
         _, without_hdr = trainer._batch(view, use_hdr=False)
         assert without_hdr.hdr is None
 
+    def test_every_batch_holds_the_brightest_pixel(self, tmp_path, voxel_scene, monkeypatch):
+        """L_hdr divides a batch by its own maximum: a batch that missed a few-pixel source would be
+        normalised by something 1000x dimmer. The source here is one pixel, 64x the rest."""
+        trainer = voxel_trainer(tmp_path, voxel_scene)
+        monkeypatch.setattr(trainer.backbone, "pixel_batch", 8)  # 8 draws of 256 pixels miss one pixel 97 % of the time
+        view = voxel_scene.train[0]
+        hdr = view.hdr.clone()
+        hdr[11, 5] = 64.0 * hdr.max()
+        view = dataclasses.replace(view, hdr=hdr)
+        for _ in range(20):
+            camera, targets = trainer._batch(view, use_hdr=True)
+            assert targets.hdr.max() == hdr.max()
+            assert (camera.pixels == torch.tensor([5.5, 11.5])).all(-1).any()
+
 
 class TestNonFiniteGradients:
     def test_a_step_with_a_nan_gradient_is_skipped_and_the_next_one_trains(self, tmp_path, voxel_scene):

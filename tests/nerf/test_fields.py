@@ -8,6 +8,7 @@ from backbones.nerf.fields import (
     MlpRadianceField,
     OccupancyGrid,
     activate_density,
+    bounded_logit,
     encoded_size,
     grid_resolutions,
     positional_encoding,
@@ -28,6 +29,24 @@ class TestPositionalEncoding:
     def test_zero_frequencies_is_identity(self):
         x = torch.rand(4, 3)
         torch.testing.assert_close(positional_encoding(x, 0), x)
+
+
+class TestBoundedLogit:
+    def test_small_logits_pass_and_large_ones_stop_at_the_bound(self):
+        logits = torch.tensor([-1e4, -200.0, -0.5, 0.0, 0.5, 3.0, 200.0, 1e4])
+        bounded = bounded_logit(logits, 8.0)
+        torch.testing.assert_close(bounded[2:5], logits[2:5], atol=2e-3, rtol=0)  # x - x^3 / (3 b^2)
+        assert abs(float(bounded[5]) - 8.0 * math.tanh(3.0 / 8.0)) < 1e-5 and float(bounded[5]) > 2.8
+        torch.testing.assert_close(bounded[[0, 1, 6, 7]], torch.tensor([-8.0, -8.0, 8.0, 8.0]))
+        assert (torch.diff(bounded) >= 0).all()  # order kept: a brighter logit never lifts to less
+
+    def test_bound_zero_is_the_logit(self):
+        logits = torch.tensor([-300.0, 0.1, 250.0])
+        assert bounded_logit(logits, 0.0) is logits
+
+    def test_gradcheck(self):
+        logits = torch.tensor([-20.0, -1.0, 0.3, 7.0, 30.0], dtype=torch.float64, requires_grad=True)
+        assert torch.autograd.gradcheck(lambda x: bounded_logit(x, 8.0), (logits,))
 
 
 class TestActivateDensity:

@@ -161,6 +161,24 @@ class TestEnvironmentBackground:
         torch.testing.assert_close(features.colors, torch.sigmoid(features.raw_colors))
         assert features.extras["ray_indices"].shape == (rows,)
 
+    def test_l2h_reads_the_bounded_logit_only_in_unbounded_scenes(self, scene):
+        """Unbounded: bound * tanh(logit / bound), so a floater's drifted logit cannot lift it past
+        everything else in HDR; bounded: the logit itself (an interior's lights need it)."""
+        camera = orbit_camera(size=4)
+        outdoor = NerfBackbone(tiny_config("cpu", environment_width=64), unbounded(scene))
+        with torch.no_grad():
+            outdoor.grid_field.color_mlp[-1].bias.fill_(200.0)  # every sample's logit far past the bound
+        features = outdoor.render_ldr_features(camera)
+        bound = outdoor.config.field.l2h_input_bound
+        assert features.raw_colors[:-16].min() > 100.0  # the field's rows (the last 16: the background's)
+        torch.testing.assert_close(features.l2h_inputs, bound * torch.tanh(features.raw_colors / bound))
+        assert features.l2h_inputs.max() <= bound
+        interior = NerfBackbone(tiny_config("cpu"), scene)
+        with torch.no_grad():
+            interior.grid_field.color_mlp[-1].bias.fill_(200.0)
+        features = interior.render_ldr_features(camera)
+        assert features.l2h_inputs is features.raw_colors and features.raw_colors.min() > 100.0
+
 
 class TestChoices:
     def test_auto_follows_the_scene(self, scene):

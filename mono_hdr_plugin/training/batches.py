@@ -1,0 +1,42 @@
+"""What one training step sees of a view: the whole image, or a batch of its pixels.
+
+A ray-based backbone (NeRF) trains on random pixels of one view. L_hdr divides the rendered and the
+true HDR each by its own maximum (methods.base), as the paper does on whole images; on a random
+batch that maximum is the batch's, and where a few pixels hold most of the range (a sun of 8
+pixels in 16384, a bulb) it jumps by orders of magnitude between batches that hold the source and
+batches that miss it. The normalised target of every other pixel jumps with it, and the
+HDR branch is trained towards a different image at every step (docs/outdoor.md, "NeRF: the
+brightest pixel in every batch"). So a batch of an HDR view always holds the view's brightest
+pixel: its own maximum is then the whole image's, as on a 3DGS render.
+"""
+
+import torch
+
+from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.data.dataset import View
+from mono_hdr_plugin.methods.base import Targets
+
+
+def brightest_pixel(hdr: torch.Tensor) -> int:
+    """Flat index (row * width + col) of the pixel of hdr [H, W, 3] with the largest channel sum."""
+    return int(hdr.sum(-1).argmax())
+
+
+def training_batch(
+    view: View, batch_size: int | None, use_hdr: bool, generator: torch.Generator
+) -> tuple[Camera, Targets]:
+    """The camera and targets of one step: the whole view (batch_size None), else batch_size random
+    pixels of it (with replacement), the first of them the brightest HDR pixel when the HDR is used."""
+    hdr = view.hdr if use_hdr else None
+    if batch_size is None:
+        return view.camera, Targets(ldr=view.image, exposure=view.exposure, hdr=hdr)
+    height, width = view.camera.height, view.camera.width
+    flat = torch.randint(0, height * width, (batch_size,), generator=generator)
+    if hdr is not None:
+        flat[0] = brightest_pixel(hdr)
+    rows, cols = flat // width, flat % width
+    pixels = torch.stack([cols.float() + 0.5, rows.float() + 0.5], -1)
+    return (
+        view.camera.with_pixels(pixels),
+        Targets(ldr=view.image[rows, cols], exposure=view.exposure, hdr=None if hdr is None else hdr[rows, cols]),
+    )
