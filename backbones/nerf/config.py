@@ -104,7 +104,7 @@ class GridFieldConfig:
     logit as it is, as in bounded scenes). A sigmoid of 12 is 1 - 6e-6, so a logit beyond it is
     invisible in LDR; unbounded, a floater whose logit drifted to 200 was lifted to 1000x the sun
     and became the divisor of L_hdr's own-max normalisation. Bounded scenes keep the logit: the
-    demo's bulb is drawn by logits of 20-33, and bounded at 12 its HDR peak fell from 0.85 to 0.28
+    demo's bulb is drawn by red logits of 22-33, and bounded at 12 its HDR peak fell from 0.85 to 0.28
     of the truth (docs/outdoor.md, "NeRF: the brightest pixel in every batch, a bounded logit")."""
     density_activation: DensityActivation = "softplus"
     """softplus keeps gradients alive in empty space; relu is also accepted."""
