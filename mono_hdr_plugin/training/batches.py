@@ -6,8 +6,8 @@ batch that maximum is the batch's, and where a few pixels hold most of the range
 pixels in 16384, a bulb) it jumps by orders of magnitude between batches that hold the source and
 batches that miss it. The normalised target of every other pixel jumps with it, and the
 HDR branch is trained towards a different image at every step (docs/outdoor.md, "NeRF: the
-brightest pixel in every batch"). So a batch of an HDR view always holds the view's brightest
-pixel: its own maximum is then the whole image's, as on a 3DGS render.
+brightest pixel in every batch, a bounded logit"). So a batch of an HDR view always holds the
+view's brightest pixel: its own maximum is then the whole image's, as on a 3DGS render.
 """
 
 import torch
