@@ -5,8 +5,8 @@ machine facts and library versions), Markdown tables and matplotlib plots. Each 
 is written at once, so an interrupted benchmark keeps it and resumes after it. Runs execute
 in this process or on a Ray cluster (`--executor ray`), with the same results.
 
-Importing this package registers `curves` and `paper` in `core.registry.BENCHMARKS`; a backbone's
+Importing this package registers `cost`, `curves` and `paper` in `core.registry.BENCHMARKS`; a backbone's
 own benchmarks (3DGS: `raster`) come through the `mono_hdr.benchmarks` entry-point group.
 """
 
-from mono_hdr_plugin.apps.bench import curves, paper  # noqa: F401 - registers "curves" and "paper"
+from mono_hdr_plugin.apps.bench import cost, curves, paper  # noqa: F401 - registers "cost", "curves" and "paper"
