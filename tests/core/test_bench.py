@@ -1,6 +1,7 @@
 """Benchmarks run end to end (tiny budgets), write the files they promise, resume, record failures,
 and decide orderings by the documented rule."""
 
+import dataclasses
 import json
 
 import pytest
@@ -8,10 +9,11 @@ import register_backbone  # registers "voxel-grid"
 import torch
 
 from mono_hdr_plugin.apps.bench import runs
-from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves, gt_max_fall, scale_spread
+from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves, curve_specs, gt_max_fall, scale_spread
 from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig, best_recipes, table_variants, tuning_trials
 from mono_hdr_plugin.apps.bench.paper_report import mean_spread, ordering, orderings, seed_values, write_paper_report
 from mono_hdr_plugin.apps.bench.paper_tables import Variant
+from mono_hdr_plugin.apps.bench.report import label
 from mono_hdr_plugin.apps.bench.runs import (
     ExecutorConfig,
     RowStore,
@@ -256,6 +258,15 @@ class TestBenchCurves:
         row = next(iter(bench_curves(config)["rows"].values()))
         assert [point["steps"] for point in row["curve"]] == [3, 6]
         assert row["curve"][-1]["radiance_scale"] > 0 and row["curve"][-1]["hdr_psnr_masked"] is not None
+
+    def test_set_overrides_every_row_and_names_it(self):
+        plain = BenchCurvesConfig(backbones=("voxel-grid",), methods=("mono",))
+        varied = BenchCurvesConfig(backbones=("voxel-grid",), methods=("mono",), set=("pyramid_levels=3",))
+        [spec] = curve_specs(varied)
+        assert spec.overrides == (("pyramid_levels", 3),)
+        assert spec.key != curve_specs(plain)[0].key
+        stored = json.loads(json.dumps(dataclasses.asdict(spec)))  # as a row's spec comes back from curves.json
+        assert label(stored) == "voxel-grid / mono [pyramid_levels=3]"
 
     def test_curve_summaries_by_hand(self):
         curve = [

@@ -14,6 +14,7 @@ from mono_hdr_plugin.apps.bench.runs import (
     RunSpec,
     execute,
     paper_backbones,
+    parse_override,
     parse_presets,
 )
 from mono_hdr_plugin.core.registry import register_benchmark
@@ -37,6 +38,9 @@ class BenchCurvesConfig:
     """BACKBONE=PRESET pairs (`mono-hdr backbones` lists presets); others run their default preset."""
     scenes: tuple[str, ...] = ("demo",)
     """Studio scenes."""
+    set: tuple[str, ...] = ()
+    """PATH=VALUE overrides of every run's config on top of the preset, as the benchmark scripts' --set
+    (e.g. pyramid_levels=3, backbone.lr_sh_dc=0.0025); they are part of each row's key and label."""
     resolution: int | None = None
     """Studio scene size, N x N pixels (default: the scenes' own 128; a size not yet rendered is rendered
     first, once, cached)."""
@@ -70,6 +74,7 @@ class BenchCurvesConfig:
 def curve_specs(config: BenchCurvesConfig) -> list[RunSpec]:
     backbones = config.backbones or tuple(paper_backbones().values())
     presets = parse_presets(config.presets)
+    overrides = tuple(parse_override(text) for text in config.set)
     return [
         RunSpec(
             backbone=b,
@@ -78,6 +83,7 @@ def curve_specs(config: BenchCurvesConfig) -> list[RunSpec]:
             scene=s,
             exposure_index=config.exposure_index,
             resolution=config.resolution,
+            overrides=overrides,
         )
         for s in config.scenes
         for b in backbones

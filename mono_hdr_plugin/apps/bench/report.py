@@ -11,8 +11,10 @@ def fmt(value: float | None, digits: int = 2) -> str:
 
 
 def label(spec: dict[str, Any]) -> str:
-    """backbone[-preset] / method of a row's spec."""
-    return f"{spec['backbone']}{'-' + spec['preset'] if spec.get('preset') else ''} / {spec['method']}"
+    """backbone[-preset] / method [overrides] of a row's spec."""
+    overrides = ", ".join(f"{path}={value}" for path, value in spec.get("overrides", ()))
+    preset = f"-{spec['preset']}" if spec.get("preset") else ""
+    return f"{spec['backbone']}{preset} / {spec['method']}" + (f" [{overrides}]" if overrides else "")
 
 
 def pyplot():
