@@ -152,6 +152,14 @@ class TestPaperTables:
         assert {"backbone.field.grid_lr", "backbone.field.mlp_lr", "hdr.converter_lr"} <= nerf_paths
         assert all(spec.scene == "demo" for specs in trials.values() for spec in specs)
 
+    @pytest.mark.parametrize("quick", [False, True])
+    def test_resolution_reaches_every_run(self, quick):
+        config = BenchPaperConfig(resolution=400, quick=quick).resolved()
+        runs = [spec for v in table_variants(config) for spec in v.runs(config.exposure_indices)]
+        runs += [spec for specs in tuning_trials(config).values() for spec in specs] if not quick else []
+        assert runs and all(spec.resolution == 400 for spec in runs)
+        assert all(spec.key.endswith("|400px") for spec in runs)
+
     def test_trials_of_the_paper_preset_tune_its_own_fields(self):
         """The official MLP field has one learning rate and no grid: its trials must set that one
         (the grid's rates were tuned before, and setting them failed)."""
@@ -184,7 +192,7 @@ class TestPaperTables:
                 store.rows[spec.key] = finished(spec, 20.0 + 5 * number + spec.seed)
         write_paper_report(config, variants, {}, store)
         text = (tmp_path / "paper.md").read_text()
-        assert "35.30" in text and "20.50 +- 0.71" in text and "HDR PSNR demo" in text
+        assert "35.30" in text and "20.50 +- 0.71" in text and "HDR PSNR demo" in text and "128 x 128 px" in text
         assert (tmp_path / "paper_table1.png").stat().st_size > 0 and (tmp_path / "paper_curves.png").is_file()
 
 

@@ -81,6 +81,9 @@ class BenchPaperConfig:
     """The recipe table tunes each method here and reports it on the OTHER scenes of --scenes."""
     presets: tuple[str, ...] = ()
     """BACKBONE=PRESET pairs; other backbones run their default (CPU) preset."""
+    resolution: int | None = None
+    """Studio scene size, N x N pixels (default: the scenes' own 128; the paper's data is 400 x 400; a size
+    not yet rendered is rendered first, once, cached)."""
     executor: Annotated[ExecutorConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExecutorConfig)
     """Where the runs execute."""
 
@@ -92,6 +95,7 @@ class BenchPaperConfig:
         "steps": at_least(1),
         "eval_points": at_least(1),
         "max_eval_views": at_least(1),
+        "resolution": at_least(8),
     }
 
     def run(self) -> dict[str, Any]:
@@ -113,6 +117,7 @@ class BenchPaperConfig:
             max_eval_views=2,
             tables=("table1",),
             presets=self.presets,
+            resolution=self.resolution,
             executor=self.executor,
         )
 
@@ -123,7 +128,9 @@ def table_variants(config: BenchPaperConfig) -> list[Variant]:
     ablation_scenes = config.ablation_scenes or config.scenes
 
     def spec(row: str, method: str, **options) -> RunSpec:
-        return RunSpec(backbones[row], method, preset=presets.get(backbones[row]), **options)
+        return RunSpec(
+            backbones[row], method, preset=presets.get(backbones[row]), resolution=config.resolution, **options
+        )
 
     variants = []
     if "table1" in config.tables or "recipes" in config.tables:  # the recipe table's shared-recipe rows
@@ -183,6 +190,7 @@ def tuning_trials(config: BenchPaperConfig) -> dict[tuple[str, str], list[RunSpe
                     scene=config.tune_scene,
                     exposure_index=config.exposure_indices[len(config.exposure_indices) // 2],
                     overrides=overrides,
+                    resolution=config.resolution,
                 )
                 for overrides in grid
             ]

@@ -110,7 +110,8 @@ def write_paper_report(config: "BenchPaperConfig", variants: list[Variant], reci
     budget = store.settings["budget"]
     lines = [
         f"git {store.facts['git_commit'][:10]}; budget per run: "
-        f"{fmt(budget['seconds'], 0)} s / {budget['steps'] or '-'} steps; exposures "
+        f"{fmt(budget['seconds'], 0)} s / {budget['steps'] or '-'} steps; "
+        f"{config.resolution or 128} x {config.resolution or 128} px; exposures "
         f"{', '.join(f't{2 * e + 1}' for e in exposures)} averaged; mean +- standard deviation over seeds. "
         "An ordering is reproduced when its sign matches the paper's and the gap exceeds the sum of "
         "the two spreads (tie: within them; reversed: beyond them, the other way).",
