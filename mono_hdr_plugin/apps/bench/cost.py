@@ -101,7 +101,8 @@ def cost_row(backbone: str, side: int, train_views: int, config: BenchCostConfig
     scene = resized_scene(cached_scene(config.scene, 1), side, train_views)
     peaks = {"data": peak_memory_mib()}
     budget = RunBudget(steps=config.warmup_steps + config.timed_steps, max_eval_views=1)
-    trainer = build_run(RunSpec(backbone=backbone, scene=config.scene), scene, config.out / "runs", budget)
+    full_size = RunSpec(backbone=backbone, scene=config.scene, overrides=(("pyramid_levels", 1),))  # no coarse level
+    trainer = build_run(full_size, scene, config.out / "runs", budget)
     trainer.fit([])
     step_seconds = list(trainer.recent_step_seconds)[config.warmup_steps :]
     peaks["training"] = peak_memory_mib()

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Issue 32 (real image sizes): Mono-HDR-GS and Mono-HDR-NeRF on the demo scene rendered at 512 x 512
+# (exposure t3, 18 training views, one seed), 3DGS with and without the image pyramid, then the cost
+# table (ms per step, render and evaluation time, peak memory) from 128 to 800 px and 18 to 108 views.
+# Each command is its own process (its peak memory is its own); run it with nothing else on the
+# machine (2 cores):
+#   bash benchmarks/run_sizes.sh [OUT]
+set -euo pipefail
+export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=17179869184
+out=${1:-benchmarks/results/sizes}
+common=(--methods mono --scenes demo --resolution 512 --eval-points 4 --max-eval-views 8)
+mono-hdr bench curves --out "$out/gs512" --backbones gs --budget-seconds 600 "${common[@]}"
+mono-hdr bench curves --out "$out/gs512_pyramid" --backbones gs --budget-seconds 600 "${common[@]}" \
+    --set pyramid_levels=3
+mono-hdr bench curves --out "$out/nerf512" --backbones nerf --budget-seconds 1200 "${common[@]}"
+mono-hdr bench cost --out "$out/cost"
