@@ -44,11 +44,14 @@ class TrainingHook:
 def seconds_left(trainer: Trainer) -> float | None:
     """Estimated seconds until training ends: the steps left (to --max-steps, or those that fit in what is
     left of --max-seconds) at the mean step time so far, plus the evaluations still due under --eval-every
-    at the mean time of those measured. None before the first step."""
+    at the mean time of those measured. None before the first step. Coarse-to-fine steps are counted at
+    their cost (a 3DGS step at 1/4 the side renders 1/16 of the pixels), so the cheap first steps of a
+    pyramid do not promise a short run."""
     if trainer.step == 0 or trainer.train_seconds <= 0:
         return None
-    per_step = trainer.train_seconds / trainer.step
-    training = max(trainer.run_length - trainer.step, 0) * per_step
+    pyramid, run_length = trainer.pyramid, trainer.run_length
+    per_step = trainer.train_seconds / pyramid.cost(0, trainer.step, run_length)  # a full-size step's seconds
+    training = pyramid.cost(trainer.step, run_length, run_length) * per_step
     if trainer.config.max_seconds is not None:
         training = min(training, max(trainer.config.max_seconds - trainer.train_seconds, 0.0))
     every, measured = trainer.config.eval_every, trainer.evaluation_seconds

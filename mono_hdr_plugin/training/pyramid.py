@@ -7,6 +7,7 @@ level the interrupted one would have been at. Each level's images are the area m
 ones (data.loading.downscale_image, as --downscale) and its cameras the matching intrinsics.
 """
 
+import math
 from dataclasses import replace
 
 import torch
@@ -17,6 +18,20 @@ from mono_hdr_plugin.data.loading import downscale_image, downscaled_camera
 
 MIN_LEVEL_SIDE = 16
 """Smallest image side a level may have: the D-SSIM loss needs 11 px windows, and fewer pixels teach little."""
+AUTOMATIC_COARSEST_SIDE = 128
+"""--pyramid-levels left automatic keeps the coarsest level at least this wide: the size whose runs the
+built-in scenes were tuned at."""
+
+
+def automatic_levels(views: list[View], whole_images: bool) -> int:
+    """Levels of an automatic pyramid: the most that keep the coarsest level's side at or above
+    AUTOMATIC_COARSEST_SIDE for a backbone rendering whole images (its step cost falls with the pixels);
+    1 for one training on ray batches (its step cost does not)."""
+    side = min((min(view.camera.width, view.camera.height) for view in views), default=0)
+    levels = 1
+    while whole_images and side // 2**levels >= AUTOMATIC_COARSEST_SIDE:
+        levels += 1
+    return levels
 
 
 def pyramid_level(step: int, run_length: int, levels: int, coarse_share: float) -> int:
@@ -26,6 +41,23 @@ def pyramid_level(step: int, run_length: int, levels: int, coarse_share: float) 
     if levels <= 1 or step >= coarse_steps:
         return 0
     return levels - 1 - int(step * (levels - 1) // coarse_steps)
+
+
+def relative_cost(start: int, stop: int, run_length: int, levels: int, coarse_share: float) -> float:
+    """Cost of steps start .. stop-1 of a whole-image backbone in full-size steps: a step at level k
+    renders 4^-k of the pixels (pyramid_level's levels, counted per level rather than step by step)."""
+    coarse_steps = coarse_share * run_length
+    if levels <= 1 or coarse_steps <= 0:
+        return float(max(stop - start, 0))
+    cost = 0.0
+    for level in range(levels):
+        if level == 0:  # from the end of the coarse share on
+            first, last = math.ceil(coarse_steps), math.inf
+        else:  # pyramid_level: levels - 1 - floor(step * (levels - 1) / coarse_steps) == level
+            first = math.ceil((levels - 1 - level) * coarse_steps / (levels - 1))
+            last = math.ceil((levels - level) * coarse_steps / (levels - 1))
+        cost += max(0, min(stop, last) - max(start, first)) * 4.0**-level
+    return cost
 
 
 def downscaled_view(view: View, factor: int) -> View:
@@ -47,7 +79,7 @@ def downscaled_view(view: View, factor: int) -> View:
 class ImagePyramid:
     """The training views at the level a step trains at; only the current level's images are held."""
 
-    def __init__(self, views: list[View], levels: int, coarse_share: float):
+    def __init__(self, views: list[View], levels: int, coarse_share: float, whole_images: bool = True):
         side = min((min(view.camera.width, view.camera.height) for view in views), default=0)
         if levels > 1 and side // 2 ** (levels - 1) < MIN_LEVEL_SIDE:
             most = max(1, (side // MIN_LEVEL_SIDE).bit_length())
@@ -56,11 +88,19 @@ class ImagePyramid:
                 f"{side // 2 ** (levels - 1)} px, under {MIN_LEVEL_SIDE}; use at most --pyramid-levels {most}"
             )
         self.views, self.levels, self.coarse_share = views, levels, coarse_share
+        self.whole_images = whole_images
+        """The backbone renders whole images (a coarse step costs less) rather than ray batches (the same)."""
         self.level = 0
         self.level_views: dict[int, View] = {}
 
     def level_at(self, step: int, run_length: int) -> int:
         return pyramid_level(step, run_length, self.levels, self.coarse_share)
+
+    def cost(self, start: int, stop: int, run_length: int) -> float:
+        """Cost of steps start .. stop-1 in full-size steps."""
+        if not self.whole_images:
+            return float(max(stop - start, 0))
+        return relative_cost(start, stop, run_length, self.levels, self.coarse_share)
 
     def view(self, index: int, level: int) -> View:
         """Training view `index` at `level` (made on first use; a new level drops the previous one's)."""

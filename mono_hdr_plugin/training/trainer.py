@@ -53,7 +53,7 @@ from mono_hdr_plugin.training.hooks import (
     interrupt_requests,
 )
 from mono_hdr_plugin.training.pipeline import Pipeline
-from mono_hdr_plugin.training.pyramid import ImagePyramid
+from mono_hdr_plugin.training.pyramid import ImagePyramid, automatic_levels
 from mono_hdr_plugin.training.resume import (
     DATA_FLAGS,
     ResumeMismatch,
@@ -104,7 +104,11 @@ class Trainer:
             group["base_lr"] = group["lr"]
         self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
-        self.pyramid = ImagePyramid(scene.train, config.pyramid_levels, config.pyramid_share)
+        whole_images = self.backbone.pixel_batch is None
+        levels = config.pyramid_levels
+        if levels is None:
+            levels = automatic_levels(scene.train, whole_images)
+        self.pyramid = ImagePyramid(scene.train, levels, config.pyramid_share, whole_images)
         self.image_level: int | None = None
         """Pyramid level the backbone was last told (None: not yet; a resumed run tells it at its first step)."""
         self.view_order: list[int] = []

@@ -275,6 +275,7 @@ class TestBenchCurves:
         assert spec.key != curve_specs(plain)[0].key
         stored = json.loads(json.dumps(dataclasses.asdict(spec)))  # as a row's spec comes back from curves.json
         assert label(stored) == "voxel-grid / mono [pyramid_levels=3]"
+        assert label({**stored, "resolution": 512}) == "voxel-grid / mono [pyramid_levels=3] at 512 px"
 
     def test_curve_summaries_by_hand(self):
         curve = [

@@ -1,12 +1,16 @@
 """Training's progress where the output is not a terminal (a log file, CI): plain lines, not silence."""
 
+from types import SimpleNamespace
+
 import pytest
+import register_backbone
 from helpers import FakeClock
 from known_render import KnownRenderConfig
 from test_calibration import known_scene
 
 from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.hooks import EvaluateEvery, ProgressBar, TrainingHook, duration_text, seconds_left
+from mono_hdr_plugin.training.pyramid import ImagePyramid
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -85,6 +89,27 @@ class TestTimeLeft:
     @pytest.mark.parametrize("seconds, text", [(None, "?"), (42.4, "42 s"), (245, "4 min 05 s"), (3900, "1 h 05 min")])
     def test_duration_text(self, seconds, text):
         assert duration_text(seconds) == text
+
+
+class TestTimeLeftOfAPyramid:
+    """3 levels over 8 steps, the first half coarse: levels 2, 2, 1, 1, 0, 0, 0, 0."""
+
+    def trainer_after_two_steps(self, whole_images: bool) -> SimpleNamespace:
+        views = register_backbone.make_capture(size=64, views=2).train
+        return SimpleNamespace(
+            step=2,
+            train_seconds=0.125,  # two steps at 1/16 of the pixels of a 1 s full-size step
+            run_length=8,
+            pyramid=ImagePyramid(views, 3, 0.5, whole_images),
+            config=SimpleNamespace(max_seconds=None, eval_every=0),
+            evaluation_seconds=[],
+        )
+
+    def test_coarse_steps_do_not_promise_a_short_run(self):
+        assert seconds_left(self.trainer_after_two_steps(True)) == pytest.approx(2 * 0.25 + 4 * 1.0)
+
+    def test_ray_batches_cost_the_same_at_every_level(self):
+        assert seconds_left(self.trainer_after_two_steps(False)) == pytest.approx(6 * 0.0625)
 
 
 class Recorder(TrainingHook):

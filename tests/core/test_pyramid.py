@@ -1,5 +1,7 @@
 """Coarse-to-fine training (--pyramid-levels): levels, their images and cameras, resume, both backbones."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import register_backbone
@@ -14,7 +16,7 @@ from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.pyramid import downscaled_view, pyramid_level
+from mono_hdr_plugin.training.pyramid import automatic_levels, downscaled_view, pyramid_level, relative_cost
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -79,11 +81,65 @@ def test_a_level_is_the_area_mean_and_its_camera_projects_to_the_shrunk_pixel(fa
     torch.testing.assert_close(shrunk_pixels, full_pixels / factor, atol=1e-5, rtol=0)
 
 
-def test_off_by_default(tmp_path, voxel_scene, voxel_backbone_config):
+def sized_views(*sides: tuple[int, int]) -> list:
+    """Stand-ins of views with cameras of these (width, height): all automatic_levels reads."""
+    return [SimpleNamespace(camera=SimpleNamespace(width=w, height=h)) for w, h in sides]
+
+
+@pytest.mark.parametrize(
+    "sides, expected",
+    [
+        ([(16, 16)], 1),
+        ([(128, 128)], 1),
+        ([(255, 300)], 1),
+        ([(256, 256)], 2),
+        ([(511, 511)], 2),
+        ([(512, 512)], 3),
+        ([(800, 800)], 3),
+        ([(1024, 768)], 3),  # the shorter side counts
+        ([(1024, 1024), (400, 400)], 2),  # and the smallest view's
+        ([(1024, 1024)], 4),
+    ],
+)
+def test_automatic_levels_keep_the_coarsest_at_128_px_or_more(sides, expected):
+    assert automatic_levels(sized_views(*sides), whole_images=True) == expected
+
+
+@pytest.mark.parametrize("levels, share", [(1, 0.5), (2, 0.25), (3, 0.5), (3, 0.6), (4, 0.999), (3, 0.0)])
+@pytest.mark.parametrize("run_length", [1, 7, 8, 10, 97])
+def test_relative_cost_is_the_sum_over_steps_of_their_pixel_share(levels, share, run_length):
+    for start in range(0, run_length + 2, 3):
+        for stop in range(start, run_length + 4, 2):
+            reference = sum(4.0 ** -pyramid_level(step, run_length, levels, share) for step in range(start, stop))
+            assert relative_cost(start, stop, run_length, levels, share) == pytest.approx(reference, abs=1e-12)
+
+
+def test_automatic_levels_leave_ray_batch_backbones_at_full_size():
+    assert automatic_levels(sized_views((1024, 1024)), whole_images=False) == 1
+
+
+def test_automatic_is_off_at_small_sizes(tmp_path, voxel_scene, voxel_backbone_config):
     trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=3), "voxel-grid", voxel_scene)
     sizes = watch_sizes(trainer)
     trainer.fit()
     assert sizes == [(16, 16)] * 3
+
+
+@pytest.fixture(scope="module")
+def voxel_scene_256():
+    return register_backbone.make_capture(size=256, views=2)
+
+
+@pytest.mark.parametrize("pixel_batch, expected", [(None, [(128, 128)] * 2 + [(256, 256)] * 2), (64, [(256, 256)] * 4)])
+def test_automatic_pyramid_at_256_px(
+    tmp_path, voxel_scene_256, voxel_backbone_config, monkeypatch, pixel_batch, expected
+):
+    """Whole-image training starts at 128 px; ray batches are drawn from the full-size views."""
+    monkeypatch.setattr(register_backbone.VoxelGridBackbone, "pixel_batch", pixel_batch)
+    trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=4), "voxel-grid", voxel_scene_256)
+    sizes = watch_sizes(trainer)
+    trainer.fit()
+    assert sizes == expected
 
 
 @pytest.fixture(scope="module")

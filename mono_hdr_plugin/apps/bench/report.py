@@ -11,10 +11,11 @@ def fmt(value: float | None, digits: int = 2) -> str:
 
 
 def label(spec: dict[str, Any]) -> str:
-    """backbone[-preset] / method [overrides] of a row's spec."""
+    """backbone[-preset] / method [overrides] at N px (the size when not the scene's own) of a row's spec."""
     overrides = ", ".join(f"{path}={value}" for path, value in spec.get("overrides", ()))
     preset = f"-{spec['preset']}" if spec.get("preset") else ""
-    return f"{spec['backbone']}{preset} / {spec['method']}" + (f" [{overrides}]" if overrides else "")
+    size = f" at {spec['resolution']} px" if spec.get("resolution") else ""
+    return f"{spec['backbone']}{preset} / {spec['method']}" + (f" [{overrides}]" if overrides else "") + size
 
 
 def pyplot():
