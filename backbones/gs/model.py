@@ -253,6 +253,12 @@ class GaussianBackbone(Backbone):
             colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite, extras=extras
         )
 
+    @property
+    def coarse_to_fine_pays(self) -> bool:
+        """Measured with the budgeted MCMC recipe (docs/sizes.md); the paper's clone/split/prune recipe
+        trains at full size, as the official code does."""
+        return isinstance(self.config.strategy, McmcStrategy)
+
     def set_image_scale(self, scale: float) -> None:
         """A coarse level has scale^2 of the pixels: grow to that share of the budget (the Gaussians
         already there stay; growth resumes as the images get finer)."""

@@ -135,6 +135,12 @@ class Backbone(torch.nn.Module):
         """
         self.max_steps = max_steps
 
+    @property
+    def coarse_to_fine_pays(self) -> bool:
+        """Whether `--pyramid-levels` left automatic trains this backbone coarse-to-fine: one that renders
+        whole images (a coarse step renders fewer pixels) does; one on ray batches (the same cost) not."""
+        return self.pixel_batch is None
+
     def set_image_scale(self, scale: float) -> None:
         """Told by the trainer when coarse-to-fine training (`--pyramid-levels`) moves to another level:
         training images are now `scale` (1/2^k) of the full size a side. A backbone whose capacity

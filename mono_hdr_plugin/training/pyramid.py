@@ -23,13 +23,12 @@ AUTOMATIC_COARSEST_SIDE = 128
 built-in scenes were tuned at."""
 
 
-def automatic_levels(views: list[View], whole_images: bool) -> int:
-    """Levels of an automatic pyramid: the most that keep the coarsest level's side at or above
-    AUTOMATIC_COARSEST_SIDE for a backbone rendering whole images (its step cost falls with the pixels);
-    1 for one training on ray batches (its step cost does not)."""
+def automatic_levels(views: list[View], coarse_to_fine_pays: bool) -> int:
+    """Levels of an automatic pyramid: for a backbone where it pays (Backbone.coarse_to_fine_pays), the
+    most that keep the coarsest level's side at or above AUTOMATIC_COARSEST_SIDE; else 1."""
     side = min((min(view.camera.width, view.camera.height) for view in views), default=0)
     levels = 1
-    while whole_images and side // 2**levels >= AUTOMATIC_COARSEST_SIDE:
+    while coarse_to_fine_pays and side // 2**levels >= AUTOMATIC_COARSEST_SIDE:
         levels += 1
     return levels
 

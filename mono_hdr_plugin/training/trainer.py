@@ -104,11 +104,10 @@ class Trainer:
             group["base_lr"] = group["lr"]
         self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
-        whole_images = self.backbone.pixel_batch is None
         levels = config.pyramid_levels
         if levels is None:
-            levels = automatic_levels(scene.train, whole_images)
-        self.pyramid = ImagePyramid(scene.train, levels, config.pyramid_share, whole_images)
+            levels = automatic_levels(scene.train, self.backbone.coarse_to_fine_pays)
+        self.pyramid = ImagePyramid(scene.train, levels, config.pyramid_share, self.backbone.pixel_batch is None)
         self.image_level: int | None = None
         """Pyramid level the backbone was last told (None: not yet; a resumed run tells it at its first step)."""
         self.view_order: list[int] = []
