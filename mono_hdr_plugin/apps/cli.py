@@ -163,7 +163,8 @@ def command_bench(argv: list[str]) -> None:
         benchmarks,
         args=argv,
         prog="mono-hdr bench",
-        description="Accuracy versus time: curves, the paper's tables, and what plugins contribute (3DGS: raster).",
+        description="Accuracy versus time: curves, the paper's tables, cost against image size and views, and "
+        "what plugins contribute (3DGS: raster).",
     )
     check_flags(config)
     config.out.mkdir(parents=True, exist_ok=True)

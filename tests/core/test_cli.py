@@ -42,7 +42,7 @@ class TestHelp:
             main(["bench", "--help"])
         assert exit_info.value.code == 0
         out = capsys.readouterr().out
-        assert "{curves,paper,raster}" in out
+        assert "{cost,curves,paper,raster}" in out
 
 
 class TestBackbonesCommand:
