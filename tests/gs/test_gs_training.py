@@ -112,8 +112,9 @@ class TestShortStudioRun:
         """The demo's bulb is white (warm) in the ground truth: its HDR render must keep that hue.
         Bound: the mean over four test views of the summed |chromaticity| error under 0.35 (a clipped-white
         bulb rendered cyan was 0.53). The error moves from run to run with float summation order (the
-        kernel's threads): 0.09-0.15 per view in four runs with 2 threads, 0.17-0.19 with 1, one view at
-        0.28 on a CI machine, so one view's error is no verdict."""
+        backward kernel hands tiles to threads dynamically, each summing its own gradients): 0.09-0.15 per
+        view in four runs with 2 threads, 0.17-0.19 with 1, one view at 0.28 on a CI machine, so one view's
+        error is no verdict."""
         trainer = studio_trainer(tmp_path, "cpu", 800)
         trainer.train()
         trainer.backbone.eval()
