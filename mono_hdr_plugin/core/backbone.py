@@ -137,8 +137,9 @@ class Backbone(torch.nn.Module):
 
     @property
     def coarse_to_fine_pays(self) -> bool:
-        """Whether `--pyramid-levels` left automatic trains this backbone coarse-to-fine: one that renders
-        whole images (a coarse step renders fewer pixels) does; one on ray batches (the same cost) not."""
+        """Whether `--pyramid-levels` left automatic trains this backbone coarse-to-fine on large views
+        (pyramid.automatic_levels): one that renders whole images (a coarse step renders fewer pixels) does;
+        one on ray batches (the same cost) not."""
         return self.pixel_batch is None
 
     def set_image_scale(self, scale: float) -> None:

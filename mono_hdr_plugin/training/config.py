@@ -54,10 +54,11 @@ class TrainConfig:
     pyramid_levels: int | None = None
     """Coarse-to-fine training: levels of an image pyramid (1: off; 3: train on the views at 1/4, then 1/2
     a side, then full size). Cameras' intrinsics scale with the images; a 3DGS budget with the pixels.
-    None: automatic. A backbone that renders whole images (3DGS's cpu preset) gets as many levels as keep
-    the coarsest at 128 px a side or more (1 up to 255 px, 2 from 256, 3 from 512: at 512 px it gains 5 dB
-    HDR in 10 minutes, docs/sizes.md); one that trains on ray batches (NeRF), whose step costs the same
-    at any size, and 3DGS's paper preset (the official recipe has no pyramid) get 1."""
+    None: automatic. A backbone that renders whole images (3DGS's cpu preset) on views of 512 px a side or
+    more gets as many levels as keep the coarsest at 128 px or more (3 at 512 px, where it gains 5 dB HDR
+    in 10 minutes; at 256 px 2 levels did not pay, docs/sizes.md); smaller views, a backbone that trains
+    on ray batches (NeRF), whose step costs the same at any size, and 3DGS's paper preset (the official
+    recipe has no pyramid) get 1."""
     pyramid_share: float = 0.5
     """With --pyramid-levels above 1: the share of the run trained below full size, split evenly among
     the coarser levels, coarsest first."""

@@ -92,16 +92,17 @@ def sized_views(*sides: tuple[int, int]) -> list:
         ([(16, 16)], 1),
         ([(128, 128)], 1),
         ([(255, 300)], 1),
-        ([(256, 256)], 2),
-        ([(511, 511)], 2),
+        ([(256, 256)], 1),  # 2 levels were measured not to pay at 256 px
+        ([(511, 511)], 1),
         ([(512, 512)], 3),
         ([(800, 800)], 3),
         ([(1024, 768)], 3),  # the shorter side counts
-        ([(1024, 1024), (400, 400)], 2),  # and the smallest view's
+        ([(1024, 1024), (600, 600)], 3),  # and the smallest view's
+        ([(1024, 1024), (400, 400)], 1),
         ([(1024, 1024)], 4),
     ],
 )
-def test_automatic_levels_keep_the_coarsest_at_128_px_or_more(sides, expected):
+def test_automatic_levels_from_512_px_keep_the_coarsest_at_128_px_or_more(sides, expected):
     assert automatic_levels(sized_views(*sides), coarse_to_fine_pays=True) == expected
 
 
@@ -136,17 +137,20 @@ def test_automatic_is_off_at_small_sizes(tmp_path, voxel_scene, voxel_backbone_c
 
 
 @pytest.fixture(scope="module")
-def voxel_scene_256():
-    return register_backbone.make_capture(size=256, views=2)
+def voxel_scene_512():
+    return register_backbone.make_capture(size=512, views=2)
 
 
-@pytest.mark.parametrize("pixel_batch, expected", [(None, [(128, 128)] * 2 + [(256, 256)] * 2), (64, [(256, 256)] * 4)])
-def test_automatic_pyramid_at_256_px(
-    tmp_path, voxel_scene_256, voxel_backbone_config, monkeypatch, pixel_batch, expected
+@pytest.mark.parametrize(
+    "pixel_batch, expected",
+    [(None, [(128, 128), (256, 256), (512, 512), (512, 512)]), (64, [(512, 512)] * 4)],
+)
+def test_automatic_pyramid_at_512_px(
+    tmp_path, voxel_scene_512, voxel_backbone_config, monkeypatch, pixel_batch, expected
 ):
     """Whole-image training starts at 128 px; ray batches are drawn from the full-size views."""
     monkeypatch.setattr(register_backbone.VoxelGridBackbone, "pixel_batch", pixel_batch)
-    trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=4), "voxel-grid", voxel_scene_256)
+    trainer = Trainer(make_config(tmp_path, voxel_backbone_config, max_steps=4), "voxel-grid", voxel_scene_512)
     sizes = watch_sizes(trainer)
     trainer.fit()
     assert sizes == expected
