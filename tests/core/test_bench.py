@@ -196,6 +196,23 @@ class TestPaperTables:
         assert (tmp_path / "paper_table1.png").stat().st_size > 0 and (tmp_path / "paper_curves.png").is_file()
 
 
+class TestPeakMemory:
+    def test_a_reset_forgets_an_earlier_peak_and_sees_a_later_one(self):
+        """What the sequential executor relies on for each row's own peak (64 MiB blocks are mmap-ed, so
+        freeing one returns it to the kernel)."""
+        block = torch.ones(16 * 2**20)  # 64 MiB of float32, written: resident
+        with_block = runs.peak_memory_mib()
+        del block
+        if not runs.reset_peak_memory():  # no /proc/self/clear_refs here: the process's peak stands
+            assert runs.peak_memory_mib() >= with_block
+            return
+        after_reset = runs.peak_memory_mib()
+        assert after_reset < with_block - 48
+        block = torch.ones(16 * 2**20)
+        assert runs.peak_memory_mib() > after_reset + 48
+        del block
+
+
 class TestExecution:
     def test_resume_skips_finished_rows_and_failures_are_recorded(self, tmp_path, monkeypatch):
         specs = [RunSpec("voxel-grid", seed=s) for s in range(3)]

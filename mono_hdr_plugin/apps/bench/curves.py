@@ -140,6 +140,7 @@ def write_curves_report(store: RowStore, out: Path) -> None:
         "views; worst peak: the view farthest from 1 (near 0: the source is lost).",
         "Chroma outliers: fraction of well-exposed pixels whose chromaticity is off by more than 0.05 "
         "(coloured floaters).",
+        "Peak MiB: the process's resident peak from the row's start (its scene, loaded once per process, counts).",
     ]
     out.mkdir(parents=True, exist_ok=True)
     (out / "curves.md").write_text("\n".join(lines) + "\n")

@@ -15,6 +15,7 @@ import platform
 import resource
 import statistics
 import subprocess
+import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -155,9 +156,25 @@ def run_facts() -> dict[str, Any]:
     }
 
 
+def reset_peak_memory() -> bool:
+    """Start a new peak-memory window at what this process holds now (Linux: the kernel's high-water mark,
+    reset through /proc/self/clear_refs), so that rows sharing a process each report their own peak.
+    False where the kernel does not allow it: peak_memory_mib is then the process's peak so far."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return False
+    return True
+
+
 def peak_memory_mib() -> float:
-    """Peak resident memory of this process so far (MiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Peak resident memory (MiB) since the last reset_peak_memory, else since the process started."""
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024.0**2 if sys.platform == "darwin" else 1024.0)
+    kilobytes = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:"))
+    return kilobytes / 1024.0
 
 
 @functools.lru_cache(maxsize=8)
@@ -275,7 +292,9 @@ def run_row(spec: RunSpec, budget: RunBudget, out: str, threads: int | None = No
     if threads is not None:
         torch.set_num_threads(threads)
     try:
-        trainer = build_run(spec, cached_scene(spec.scene, spec.exposure_index, spec.resolution), Path(out), budget)
+        scene = cached_scene(spec.scene, spec.exposure_index, spec.resolution)
+        reset_peak_memory()  # an earlier row in this process (the sequential executor) does not count
+        trainer = build_run(spec, scene, Path(out), budget)
         curve = EvaluateAlong(budget.eval_points)
         trainer.fit([curve])
         fps_ldr, fps_ldr_hdr = render_fps(trainer)
