@@ -236,8 +236,8 @@ class TestBoundedScenesUnchanged:
     @pytest.mark.parametrize("importance,key", [(0, "march"), (8, "importance")])
     def test_renders_equal_the_old_ones(self, overrides, importance, key):
         """Equal to the renders of the code before contraction, up to the last bit of float32: the golden
-        file was written on an AVX2 machine and is matched exactly there; on an AVX-512 one (other
-        vectorised exp and sums) 9-14 of its 576 values differ by one ulp (6e-8). A changed sampling or
+        file was written on an AVX2 machine and is matched exactly there; on an AVX-512 one 9-14 of its 576
+        values differ by one ulp (6e-8), also with ATen, MKL and oneDNN held to AVX2. A changed sampling or
         field lookup moves them by orders of magnitude more."""
         golden = torch.load(GOLDEN, weights_only=True)[key]
         torch.testing.assert_close(bounded_render(importance, **overrides), golden, rtol=4e-7, atol=1e-7)
