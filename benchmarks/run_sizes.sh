@@ -20,13 +20,4 @@ mono-hdr bench curves --out "$out/gs512_pyramid" --backbones gs --budget-seconds
     --set pyramid_levels=3
 mono-hdr bench curves --out "$out/nerf512" --backbones nerf --budget-seconds 1200 "${common[@]}"
 mono-hdr bench cost --out "$out/cost"
-# The three 512 px curves in one plot.
-python - "$out" <<'PY'
-import json, sys
-from pathlib import Path
-from mono_hdr_plugin.apps.bench.curves import plot_curves
-out = Path(sys.argv[1])
-rows = [row for name in ("gs512", "gs512_pyramid", "nerf512")
-        for row in json.loads((out / name / "curves.json").read_text())["rows"].values() if row["status"] == "ok"]
-plot_curves(rows, out / "curves_512.png")
-PY
+python benchmarks/plot_curves.py "$out/curves_512.png" "$out/gs512" "$out/gs512_pyramid" "$out/nerf512"

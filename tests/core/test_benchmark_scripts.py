@@ -40,3 +40,25 @@ def test_overrides_and_variants_read_like_bench_set():
         ("backbone.field.occupancy_threshold", 0.001),
         ("backbone.field.grid_size", 64),
     )
+
+
+class TestPlotCurves:
+    """benchmarks/plot_curves.py: the finished rows of several bench curves folders in one plot."""
+
+    @staticmethod
+    def script():
+        return runpy.run_path(str(Path(__file__).parents[2] / "benchmarks" / "plot_curves.py"))
+
+    def test_rows_of_every_folder_that_finished(self, tmp_path):
+        import json
+
+        for name, statuses in (("a", ["ok", "failed"]), ("b", ["ok"])):
+            (tmp_path / name).mkdir()
+            rows = {f"{name}{i}": {"status": status, "key": f"{name}{i}"} for i, status in enumerate(statuses)}
+            (tmp_path / name / "curves.json").write_text(json.dumps({"rows": rows}))
+        rows = self.script()["finished_rows"]([tmp_path / "a", tmp_path / "b"])
+        assert [row["key"] for row in rows] == ["a0", "b0"]
+
+    def test_a_folder_without_curves_names_the_command(self, tmp_path):
+        with pytest.raises(SystemExit, match=r"missing/curves.json does not exist: run `mono-hdr bench curves"):
+            self.script()["finished_rows"]([tmp_path / "missing"])
