@@ -10,3 +10,13 @@ class FakeClock:
     def perf_counter(self) -> float:
         self.now += self.seconds_per_call
         return self.now
+
+
+def quiet_config(backbone_config, out, method: str | None = None, **settings):
+    """The run config of `method` (None: the default) on `backbone_config`, training into `out` without
+    output on the terminal, renders or checkpoints before the end; `settings` are further TrainConfig
+    fields and override these."""
+    from mono_hdr_plugin.training.config import train_config_for
+
+    quiet = {"quiet": True, "save_renders": False, "checkpoint_every": 10**9}
+    return train_config_for(type(backbone_config), method)(backbone=backbone_config, out=out, **(quiet | settings))

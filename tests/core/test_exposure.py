@@ -7,6 +7,7 @@ import colour
 import numpy as np
 import pytest
 import torch
+from helpers import quiet_config
 
 from mono_hdr_plugin.core.exposure import (
     ExposureConfig,
@@ -221,18 +222,9 @@ class TestTraining:
         steps: int = 6,
         learn: bool | None = None,
     ):
-        from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
-        config = train_config_for(type(voxel_backbone_config), method)(
-            backbone=voxel_backbone_config,
-            out=tmp_path / "run",
-            quiet=True,
-            max_steps=steps,
-            save_renders=False,
-            checkpoint_every=10**9,
-            max_eval_views=2,
-        )
+        config = quiet_config(voxel_backbone_config, tmp_path / "run", method, max_steps=steps, max_eval_views=2)
         config.exposure.learn_exposure = learn
         return Trainer(config, "voxel-grid", auto_exposed(voxel_scene, self.exposures, known))
 

@@ -18,11 +18,11 @@ import math
 import pytest
 import register_backbone  # examples/, put on sys.path by conftest
 import torch
+from helpers import quiet_config
 
 from backbones.gs import GaussianConfig
 from backbones.nerf import MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.core.metrics import ssim
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 BASELINES = ("hdr-gs", "hdr-nerf")
@@ -147,15 +147,7 @@ def make_trainer(
     **method_settings,
 ) -> Trainer:
     """A trainer of `method` with MethodConfig fields `method_settings` and the method's own `options`."""
-    config = train_config_for(type(BACKBONES[backbone]()), method)(
-        backbone=BACKBONES[backbone](),
-        out=tmp_path / "run",
-        quiet=True,
-        max_steps=10,
-        save_renders=False,
-        checkpoint_every=10**9,
-        hdr_view_ratio=ratio,
-    )
+    config = quiet_config(BACKBONES[backbone](), tmp_path / "run", method, max_steps=10, hdr_view_ratio=ratio)
     for key, value in method_settings.items():
         setattr(config.hdr, key, value)
     for key, value in (options or {}).items():

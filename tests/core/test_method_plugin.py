@@ -7,6 +7,7 @@ import pytest
 import register_backbone
 import register_method  # registers "tone-curve"
 import torch
+from helpers import quiet_config
 
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
@@ -66,14 +67,7 @@ class TestToneCurve:
 class TestTrainsOnEveryBackbone:
     def test_two_steps_move_the_curve(self, tmp_path, voxel_scene, backbone):
         backbone_config = TINY_BACKBONES[backbone]()
-        config = train_config_for(type(backbone_config), "tone-curve")(
-            backbone=backbone_config,
-            out=tmp_path / "run",
-            quiet=True,
-            save_renders=False,
-            checkpoint_every=10**9,
-            max_steps=2,
-        )
+        config = quiet_config(backbone_config, tmp_path / "run", "tone-curve", max_steps=2)
         trainer = Trainer(config, backbone, voxel_scene)
         before = trainer.method.raw_rises.detach().clone()
         records = [trainer.train_step() for _ in range(2)]

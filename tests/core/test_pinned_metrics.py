@@ -12,10 +12,10 @@ commit, saying why; a refactor never does. The NeRF entries come from the cpu fi
 import pytest
 import register_backbone
 import torch
+from helpers import quiet_config
 
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, NerfConfig
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 CONFIGS = {
@@ -54,15 +54,7 @@ def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
     assert torch.get_num_threads() == 2  # tests/conftest.py: the pinned runs used 2 threads
     scene = register_backbone.make_capture(size=16, views=8)
     backbone_config = CONFIGS[backbone]()
-    config = train_config_for(type(backbone_config), method)(
-        backbone=backbone_config,
-        out=tmp_path / "run",
-        quiet=True,
-        max_steps=200,
-        save_renders=False,
-        checkpoint_every=10**9,
-        seed=3,
-    )
+    config = quiet_config(backbone_config, tmp_path / "run", method, max_steps=200, seed=3)
     metrics = Trainer(config, backbone, scene).train()
     # The C++/OpenMP kernels of gs and nerf sum in an order that can differ between machines and with the
     # machine's load, even on MKL's AVX2 path (tests/conftest.py): on 2026-12-03, with other work running,

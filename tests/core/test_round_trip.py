@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import register_backbone  # examples/, put on sys.path by conftest
 import torch
+from helpers import quiet_config
 
 from backbones.gs import GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
@@ -18,7 +19,6 @@ from mono_hdr_plugin.apps.cli import main
 from mono_hdr_plugin.apps.render import render_checkpoint
 from mono_hdr_plugin.data.io import read_exr
 from mono_hdr_plugin.methods.base import method_names
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.trained import load_trained_model
 from mono_hdr_plugin.training.trainer import Trainer
@@ -51,13 +51,8 @@ METRIC_KEYS = ("hdr_psnr", "hdr_ssim", "hdr_psnr_gt_max", "hdr_ssim_gt_max", "ld
 
 def trained(tmp_path, scene, case: str, method: str, steps: int = 8) -> tuple[Trainer, dict]:
     backbone_config = BACKBONE_CONFIGS[case]()
-    config = train_config_for(type(backbone_config), method)(
-        backbone=backbone_config,
-        out=tmp_path / "run",
-        quiet=True,
-        max_steps=steps,
-        max_eval_views=2,
-        checkpoint_every=10**9,
+    config = quiet_config(
+        backbone_config, tmp_path / "run", method, max_steps=steps, max_eval_views=2, save_renders=True
     )
     trainer = Trainer(config, case.split("-")[0] if case != "voxel-grid" else case, scene)
     return trainer, trainer.train()

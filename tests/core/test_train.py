@@ -6,11 +6,11 @@ import math
 import pytest
 import register_backbone  # noqa: F401 - registers "voxel-grid" (examples/, on sys.path via conftest)
 import torch
-from helpers import FakeClock
+from helpers import FakeClock, quiet_config
 
 from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio, train_config_for
+from mono_hdr_plugin.training.config import hdr_supervised_views, parse_view_ratio
 from mono_hdr_plugin.training.evaluation import evaluate
 from mono_hdr_plugin.training.frames import calibrate
 from mono_hdr_plugin.training.trained import load_trained_model
@@ -18,9 +18,7 @@ from mono_hdr_plugin.training.trainer import Trainer
 
 
 def make_config(tmp_path, backbone_config, method: str = "mono", **overrides):
-    config = train_config_for(type(backbone_config), method)(
-        backbone=backbone_config, out=tmp_path / "run", quiet=True, save_renders=False, checkpoint_every=10**9
-    )
+    config = quiet_config(backbone_config, tmp_path / "run", method)
     for key, value in overrides.items():
         if hasattr(config.hdr, key):
             setattr(config.hdr, key, value)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import register_backbone  # examples/, put on sys.path by conftest
 import torch
+from helpers import quiet_config
 from known_render import KnownRenderConfig, expected_render, known_scene
 from skimage.metrics import peak_signal_noise_ratio
 
@@ -17,15 +18,7 @@ from mono_hdr_plugin.training.trainer import Trainer
 
 def voxel_trainer(tmp_path, scene, **options) -> Trainer:
     backbone = register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24)
-    config = train_config_for(type(backbone))(
-        backbone=backbone,
-        out=tmp_path / "run",
-        quiet=True,
-        max_steps=10,
-        save_renders=False,
-        checkpoint_every=10**9,
-        **options,
-    )
+    config = quiet_config(backbone, tmp_path / "run", **({"max_steps": 10} | options))
     return Trainer(config, "voxel-grid", scene)
 
 

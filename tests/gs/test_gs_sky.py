@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 from gs_scenes import make_camera
+from helpers import quiet_config
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.rasterizer import project_gaussians, rasterize, render_gaussians
@@ -283,21 +284,13 @@ def test_short_run_keeps_the_sun(tmp_path):
     from gs_outdoor import outdoor_capture, sun_pixels
 
     from backbones.gs.model import cpu_preset
-    from mono_hdr_plugin.training.config import train_config_for
     from mono_hdr_plugin.training.trainer import Trainer
 
     ratios = {}
     for unbounded in (True, False):
         torch.manual_seed(0)
         scene = outdoor_capture(unbounded=unbounded)
-        config = train_config_for(GaussianConfig, "mono")(
-            backbone=cpu_preset(),
-            out=tmp_path / str(unbounded),
-            quiet=True,
-            save_renders=False,
-            checkpoint_every=10**9,
-            max_steps=1000,
-        )
+        config = quiet_config(cpu_preset(), tmp_path / str(unbounded), "mono", max_steps=1000)
         trainer = Trainer(config, "gs", scene)
         trainer.fit()
         trainer.calibrate()

@@ -5,24 +5,17 @@ import math
 
 import pytest
 import torch
+from helpers import quiet_config
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig
 from mono_hdr_plugin.methods.base import method_names
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def gs_trainer(tmp_path, scene, method: str = "mono", max_steps: int = 2, **backbone_overrides) -> Trainer:
     backbone = GaussianConfig(random_init_points=500, **backbone_overrides)
-    config = train_config_for(GaussianConfig, method)(
-        backbone=backbone,
-        out=tmp_path / "run",
-        quiet=True,
-        save_renders=False,
-        checkpoint_every=10**9,
-        max_steps=max_steps,
-    )
+    config = quiet_config(backbone, tmp_path / "run", method, max_steps=max_steps)
     return Trainer(config, "gs", scene)
 
 
@@ -83,16 +76,7 @@ def studio_trainer(tmp_path, preset: str, steps: int) -> Trainer:
 
     scene = load_scene(DataConfig(scene="demo"))
     backbone = GaussianBackbone.presets()[preset]
-    config = train_config_for(GaussianConfig)(
-        backbone=backbone,
-        preset=preset,
-        out=tmp_path / preset,
-        quiet=True,
-        save_renders=False,
-        checkpoint_every=10**9,
-        max_steps=steps,
-        max_eval_views=4,
-    )
+    config = quiet_config(backbone, tmp_path / preset, preset=preset, max_steps=steps, max_eval_views=4)
     return Trainer(config, "gs", scene)
 
 
@@ -157,12 +141,9 @@ class TestTimeBudget:
 
     def budget_trainer(self, tmp_path, scene, seconds: float) -> Trainer:
         backbone = GaussianBackbone.presets()["cpu"]
-        config = train_config_for(GaussianConfig)(
-            backbone=backbone,
-            out=tmp_path / "run",
-            quiet=True,
-            save_renders=False,
-            checkpoint_every=10**9,
+        config = quiet_config(
+            backbone,
+            tmp_path / "run",
             max_steps=100_000,
             max_seconds=seconds,
             max_eval_views=1,

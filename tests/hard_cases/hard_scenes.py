@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 
 import torch
+from helpers import quiet_config
 from register_backbone import VoxelGridConfig  # examples/, on sys.path via tests/conftest.py
 from torch import Tensor
 
@@ -17,7 +18,6 @@ from backbones.gs import DefaultStrategy, GaussianConfig
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfConfig
 from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.data.dataset import SceneData, View
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 BACKBONES = ("voxel-grid", "gs", "nerf")
@@ -142,13 +142,8 @@ def make_trainer(
     backbone_overrides: dict | None = None,
     **overrides,
 ) -> Trainer:
-    config = train_config_for(type(backbone_config(backbone)), method)(
-        backbone=backbone_config(backbone, **(backbone_overrides or {})),
-        out=tmp_path / "run",
-        quiet=True,
-        save_renders=False,
-        checkpoint_every=10**9,
-        max_steps=max_steps,
+    config = quiet_config(
+        backbone_config(backbone, **(backbone_overrides or {})), tmp_path / "run", method, max_steps=max_steps
     )
     config.hdr.hidden = 32  # converters keep their structure at a quarter of the cost
     for key, value in overrides.items():

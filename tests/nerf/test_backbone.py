@@ -5,6 +5,7 @@ from importlib.metadata import entry_points
 import pytest
 import torch
 import torch.nn.functional as F
+from helpers import quiet_config
 from nerf_scenes import orbit_camera, tiny_config
 
 from backbones.nerf import GridFieldConfig, MlpFieldConfig, NerfBackbone, NerfConfig
@@ -391,7 +392,6 @@ class TestOccupancySkipping:
     def test_refresh_keeps_every_weighted_sample_of_a_trained_field(self, tmp_path, voxel_scene):
         """The occupancy grid of a trained field never drops a sample that carries weight (1 % of its
         ray) in a dense-sampling reference render (every cell occupied, steps 16x finer)."""
-        from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
         config = NerfConfig(
@@ -406,9 +406,7 @@ class TestOccupancySkipping:
                 rays_per_step=256,
             )
         )
-        train = train_config_for(NerfConfig)(
-            backbone=config, out=tmp_path, quiet=True, max_steps=150, save_renders=False, checkpoint_every=10**9
-        )
+        train = quiet_config(config, tmp_path, max_steps=150)
         trainer = Trainer(train, "nerf", voxel_scene)
         while trainer.step < train.max_steps:
             trainer.train_step()

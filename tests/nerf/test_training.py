@@ -4,25 +4,18 @@ import math
 
 import pytest
 import torch
+from helpers import quiet_config
 from nerf_scenes import tiny_config
 
-from backbones.nerf import NerfBackbone, NerfConfig
+from backbones.nerf import NerfBackbone
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.methods.base import method_names
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 def nerf_trainer(tmp_path, scene, field: str, method: str) -> Trainer:
-    config = train_config_for(type(tiny_config(field)), method)(
-        backbone=tiny_config(field),
-        out=tmp_path / "run",
-        quiet=True,
-        save_renders=False,
-        checkpoint_every=10**9,
-        max_steps=2,
-    )
+    config = quiet_config(tiny_config(field), tmp_path / "run", method, max_steps=2)
     return Trainer(config, "nerf", scene)
 
 
@@ -66,15 +59,7 @@ class TestCheckpoint:
 class TestCpuFieldLearnsTheDemoScene:
     def test_hdr_psnr_rises(self, tmp_path):
         scene = load_scene(DataConfig(scene="demo"))
-        config = train_config_for(NerfConfig)(
-            backbone=NerfBackbone.presets()["cpu"],
-            out=tmp_path / "run",
-            quiet=True,
-            save_renders=False,
-            checkpoint_every=10**9,
-            max_steps=400,
-            max_eval_views=2,
-        )
+        config = quiet_config(NerfBackbone.presets()["cpu"], tmp_path / "run", max_steps=400, max_eval_views=2)
         trainer = Trainer(config, "nerf", scene)
         for _ in range(50):
             trainer.train_step()
@@ -97,14 +82,6 @@ def test_cpu_preset_beats_the_old_fast_field_in_200_steps(tmp_path):
     scene = register_backbone.make_capture(size=16, views=8)
     scores = []
     for seed in (0, 1, 3):
-        config = train_config_for(NerfConfig)(
-            backbone=NerfBackbone.presets()["cpu"],
-            out=tmp_path / f"run{seed}",
-            quiet=True,
-            max_steps=200,
-            save_renders=False,
-            checkpoint_every=10**9,
-            seed=seed,
-        )
+        config = quiet_config(NerfBackbone.presets()["cpu"], tmp_path / f"run{seed}", max_steps=200, seed=seed)
         scores.append(Trainer(config, "nerf", scene).train()["hdr_psnr"])
     assert sum(scores) / len(scores) > 18.0, f"HDR PSNR of seeds 0, 1, 3: {scores}"

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from helpers import quiet_config
 from nerf_scenes import orbit_camera, tiny_config
 
 from backbones.nerf import NerfBackbone, NerfConfig
@@ -13,7 +14,6 @@ from backbones.nerf.unbounded import contract, disparity_distances, uncontract, 
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.configs import config_from_dict
 from mono_hdr_plugin.core.environment import direction_to_uv
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trainer import Trainer
 
 # Renders of the bounded tiny scene by the code before this change (commit a77c5ff): image and depth.
@@ -258,14 +258,7 @@ def test_contracted_render_is_finite_with_gradients(scene):
 def test_two_training_steps_on_an_unbounded_capture(tmp_path, voxel_scene, method):
     scene = dataclasses.replace(voxel_scene, metadata={**voxel_scene.metadata, "unbounded": True})
     backbone_config = tiny_config("cpu", environment_width=64)
-    config = train_config_for(NerfConfig, method)(
-        backbone=backbone_config,
-        out=tmp_path / "run",
-        quiet=True,
-        save_renders=False,
-        checkpoint_every=10**9,
-        max_steps=2,
-    )
+    config = quiet_config(backbone_config, tmp_path / "run", method, max_steps=2)
     trainer = Trainer(config, "nerf", scene)
     assert trainer.backbone.contracted and trainer.backbone.environment is not None
     before = [p.detach().clone() for p in trainer.backbone.environment.parameters()]

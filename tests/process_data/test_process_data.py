@@ -8,6 +8,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 import torch
+from helpers import quiet_config
 from PIL import Image
 from process_data_photos import shoot, textured_scene
 
@@ -147,7 +148,6 @@ class TestProcessData:
 class TestTrainOnResult:
     def test_a_few_steps(self, processed, tmp_path):
         from mono_hdr_plugin.core.registry import BACKBONES
-        from mono_hdr_plugin.training.config import train_config_for
         from mono_hdr_plugin.training.trainer import Trainer
 
         if "gs" in BACKBONES.available():
@@ -159,14 +159,7 @@ class TestTrainOnResult:
 
             name, backbone_config = "voxel-grid", register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=16)
         data = load_scene(DataConfig(data=processed[1], downscale=4))
-        config = train_config_for(type(backbone_config))(
-            backbone=backbone_config,
-            out=tmp_path / "run",
-            quiet=True,
-            save_renders=False,
-            checkpoint_every=10**9,
-            max_steps=2,
-        )
+        config = quiet_config(backbone_config, tmp_path / "run", max_steps=2)
         trainer = Trainer(config, name, data)
         before = [p.detach().clone() for p in trainer.backbone.parameters()]
         records = [trainer.train_step() for _ in range(2)]

@@ -2,8 +2,8 @@
 
 import pytest
 import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
+from helpers import quiet_config
 
-from mono_hdr_plugin.training.config import train_config_for
 from mono_hdr_plugin.training.trained import TrainedModel
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -12,15 +12,7 @@ def train_model(
     tmp_path, scene, backbone_name: str, backbone_config, method: str = "mono", steps: int = 20
 ) -> tuple[Trainer, TrainedModel]:
     """A Trainer after `steps` steps (checkpoint written) and the same model as the viewer loads it."""
-    config = train_config_for(type(backbone_config), method)(
-        backbone=backbone_config,
-        out=tmp_path / "run",
-        quiet=True,
-        max_steps=steps,
-        max_eval_views=1,
-        checkpoint_every=10**9,
-        save_renders=False,
-    )
+    config = quiet_config(backbone_config, tmp_path / "run", method, max_steps=steps, max_eval_views=1)
     trainer = Trainer(config, backbone_name, scene)
     trainer.train()
     trainer.pipeline.eval()
