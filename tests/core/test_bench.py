@@ -235,9 +235,16 @@ class TestExecution:
         assert rows[specs[2].key]["status"] == "failed" and "out of memory" in rows[specs[2].key]["error"]
         assert rows[specs[0].key]["status"] == rows[specs[1].key]["status"] == "ok"
 
-    def test_other_settings_start_afresh(self, tmp_path):
+    def test_other_settings_start_afresh_and_keep_the_earlier_file(self, tmp_path):
         RowStore(tmp_path / "rows.json", {"budget": 1}).add(finished(RunSpec("gs"), 20.0))
         assert not RowStore(tmp_path / "rows.json", {"budget": 2}).rows
+        (aside,) = tmp_path.glob("rows.earlier-*.json")
+        assert list(json.loads(aside.read_text())["rows"]) == [RunSpec("gs").key]
+
+    def test_a_file_of_an_older_version_with_more_settings_resumes(self, tmp_path):
+        """curves.json of earlier versions named the rows they ran among the settings."""
+        RowStore(tmp_path / "rows.json", {"budget": 1, "specs": ["a"]}).add(finished(RunSpec("gs"), 20.0))
+        assert list(RowStore(tmp_path / "rows.json", {"budget": 1}).rows) == [RunSpec("gs").key]
 
     def test_ray_missing_says_how_to_install(self, tmp_path, monkeypatch):
         monkeypatch.setitem(__import__("sys").modules, "ray", None)
@@ -273,6 +280,21 @@ class TestBenchCurves:
         text = (tmp_path / "curves.md").read_text()
         assert "voxel-grid / hdr-gs" in text and "50.0" in text
         assert (tmp_path / "curves.png").stat().st_size > 0
+
+    def test_a_second_run_of_other_rows_keeps_the_first_runs_rows(self, tmp_path, steps_of_50ms, monkeypatch):
+        """A second scene or method into the same --out goes beside the first (it once replaced them)."""
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
+        for method in ("mono", "hdr-gs"):
+            bench_curves(
+                BenchCurvesConfig(
+                    out=tmp_path, backbones=("voxel-grid",), methods=(method,), budget_steps=2, eval_points=1
+                )
+            )
+        rows = json.loads((tmp_path / "curves.json").read_text())["rows"].values()
+        assert sorted(row["spec"]["method"] for row in rows) == ["hdr-gs", "mono"]
+        text = (tmp_path / "curves.md").read_text()
+        assert "voxel-grid / mono" in text and "voxel-grid / hdr-gs" in text
 
     def test_a_step_budget_ends_every_run_at_its_steps(self, tmp_path, steps_of_50ms, monkeypatch):
         tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)

@@ -100,7 +100,7 @@ def bench_curves(config: BenchCurvesConfig) -> dict[str, Any]:
         max_eval_views=config.max_eval_views or (4 if config.quick else None),
     )
     specs = curve_specs(config)
-    store = RowStore(config.out / "curves.json", {"budget": budget.__dict__, "specs": [s.key for s in specs]})
+    store = RowStore(config.out / "curves.json", {"budget": budget.__dict__})
     with report_on_exit(lambda: write_curves_report(store, config.out)):
         execute(specs, budget, store, config.out / "runs", config.executor)
     return {"facts": store.facts, "rows": store.rows}

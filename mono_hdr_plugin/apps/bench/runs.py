@@ -331,8 +331,9 @@ def failed_row(spec: RunSpec, error: BaseException | str, attempts: int) -> dict
 class RowStore:
     """Finished rows of one benchmark in OUT/<name>.json, written after every row (atomically).
 
-    Rows of an earlier run with the same settings are kept and not run again (resume); failed
-    rows are run again.
+    Rows of an earlier run with the same settings (budget, ...) are kept, whatever rows it ran: a
+    finished row is not run again (resume) and new rows go beside it (a second scene); failed rows
+    are run again. The file of an earlier run with other settings is moved aside, never overwritten.
     """
 
     path: Path
@@ -341,12 +342,19 @@ class RowStore:
     rows: dict[str, dict] = field(default_factory=dict)
 
     def __post_init__(self):
-        if self.path.is_file():
-            earlier = json.loads(self.path.read_text())
-            if earlier.get("settings") == self.settings:
-                self.rows = {key: row for key, row in earlier.get("rows", {}).items() if row.get("status") == "ok"}
-                if self.rows:
-                    console.print(f"resuming: {len(self.rows)} finished rows in {self.path} are kept")
+        if not self.path.is_file():
+            return
+        earlier = json.loads(self.path.read_text())
+        earlier_settings = earlier.get("settings", {})
+        # only this store's keys: files of older versions carry more (the list of rows they ran)
+        if all(earlier_settings.get(key) == value for key, value in self.settings.items()):
+            self.rows = {key: row for key, row in earlier.get("rows", {}).items() if row.get("status") == "ok"}
+            if self.rows:
+                console.print(f"resuming: {len(self.rows)} finished rows in {self.path} are kept")
+        else:
+            aside = self.path.with_suffix(f".earlier-{time.strftime('%Y%m%d-%H%M%S')}.json")
+            self.path.rename(aside)
+            console.print(f"{self.path} held rows of other settings; moved to {aside}")
 
     def done(self, spec: RunSpec) -> bool:
         return spec.key in self.rows
