@@ -9,7 +9,14 @@ import register_backbone  # registers "voxel-grid"
 import torch
 
 from mono_hdr_plugin.apps.bench import runs
-from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, bench_curves, curve_specs, gt_max_fall, scale_spread
+from mono_hdr_plugin.apps.bench.curves import (
+    BenchCurvesConfig,
+    bench_curves,
+    curve_specs,
+    gt_max_fall,
+    plot_curves,
+    scale_spread,
+)
 from mono_hdr_plugin.apps.bench.paper import BenchPaperConfig, best_recipes, table_variants, tuning_trials
 from mono_hdr_plugin.apps.bench.paper_report import mean_spread, ordering, orderings, seed_values, write_paper_report
 from mono_hdr_plugin.apps.bench.paper_tables import Variant
@@ -295,6 +302,25 @@ class TestBenchCurves:
         assert sorted(row["spec"]["method"] for row in rows) == ["hdr-gs", "mono"]
         text = (tmp_path / "curves.md").read_text()
         assert "voxel-grid / mono" in text and "voxel-grid / hdr-gs" in text
+
+    def test_a_run_keeps_its_colour_in_every_scene(self, tmp_path, monkeypatch):
+        import matplotlib.pyplot as plt
+
+        figures = []
+        monkeypatch.setattr(plt, "close", figures.append)  # keep the figure to read its lines
+        point = {"train_seconds": 1.0, "hdr_psnr": 30.0, "hdr_psnr_gt_max": 30.0, "ldr_psnr": 30.0}
+        rows = [
+            {"spec": dataclasses.asdict(RunSpec(backbone, scene=scene)), "curve": [point]}
+            for scene, backbones in (("demo", ["nerf"]), ("lamp-room", ["gs", "nerf"]))
+            for backbone in backbones
+        ]
+        plot_curves(rows, tmp_path / "plot.png")
+        axes = figures[0].axes  # a row of panels per scene, demo first
+        demo_panel, lamp_room_panel = axes[0], axes[len(axes) // 2]
+        nerf = label(rows[0]["spec"])
+        (demo_line,) = (line for line in demo_panel.get_lines() if line.get_label() == nerf)
+        (lamp_room_line,) = (line for line in lamp_room_panel.get_lines() if line.get_label() == nerf)
+        assert demo_line.get_color() == lamp_room_line.get_color()
 
     def test_a_step_budget_ends_every_run_at_its_steps(self, tmp_path, steps_of_50ms, monkeypatch):
         tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)

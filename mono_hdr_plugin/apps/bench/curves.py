@@ -184,12 +184,17 @@ def plot_curves(rows: list[dict], path: Path) -> None:
         if threads
         else "training seconds"
     )
+    # a run keeps its colour in every scene's panels
+    labels = sorted({label(row["spec"]) for row in rows})
+    colours = {name: f"C{index % 10}" for index, name in enumerate(labels)}
     figure, axes = plt.subplots(len(scenes), len(PANELS), figsize=(15, 3.6 * len(scenes)), squeeze=False)
     for axes_row, scene in zip(axes, scenes):
         for row in sorted((r for r in rows if r["spec"]["scene"] == scene), key=lambda r: label(r["spec"])):
             seconds = [point["train_seconds"] for point in row["curve"]]
+            name = label(row["spec"])
             for axis, (key, _) in zip(axes_row, PANELS):
-                line = axis.plot(seconds, [point[key] for point in row["curve"]], marker="o", label=label(row["spec"]))
+                values = [point[key] for point in row["curve"]]
+                line = axis.plot(seconds, values, marker="o", label=name, color=colours[name])
                 if key == "hdr_psnr_gt_max" and all(point.get("hdr_psnr_masked") for point in row["curve"]):
                     masked = [point["hdr_psnr_masked"] for point in row["curve"]]
                     axis.plot(seconds, masked, linestyle="--", color=line[0].get_color())
