@@ -4,7 +4,7 @@
 # at full size throughout (the default at 256 px) and, on the first scene only, with a 2-level
 # pyramid. Run it with nothing else on the machine (2 cores):
 #   bash benchmarks/run_sizes_256.sh [OUT] ["SCENE ..."]
-# Each scene is rendered at 256 px first, once (demo and lamp-room in about 5 minutes each); rows
+# Each scene is rendered at 256 px first, once (demo in about 5 minutes, lamp-room in 15-22); rows
 # already in OUT's curves.json are not run again, so a second scene adds its rows beside the first's.
 set -euo pipefail
 export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=17179869184

@@ -18,7 +18,7 @@ from mono_hdr_plugin.training.trainer import Trainer
 
 def voxel_trainer(tmp_path, scene, **options) -> Trainer:
     backbone = register_backbone.VoxelGridConfig(resolution=12, samples_per_ray=24)
-    config = quiet_config(backbone, tmp_path / "run", **({"max_steps": 10} | options))
+    config = quiet_config(backbone, tmp_path / "run", max_steps=10, **options)
     return Trainer(config, "voxel-grid", scene)
 
 
