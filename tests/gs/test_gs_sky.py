@@ -277,10 +277,12 @@ class TestInitialisation:
 
 @pytest.mark.slow
 def test_short_run_keeps_the_sun(tmp_path):
-    """(g) 1000 cpu-preset steps of mono on the tiny outdoor capture (about 4 min on 2 busy cores):
+    """(g) 1000 cpu-preset steps of mono on the tiny outdoor capture (about 30 s on 2 cores):
     with the environment the sun's HDR peak reaches the GT's order of magnitude in every test view;
-    the old model (scene taken as bounded: random points in the box, no sky) keeps < 10 % of it
-    (measured: 0.44-0.74 with, 0.003-0.021 without)."""
+    the old model (scene taken as bounded: random points in the box, no sky) keeps about 1 % of it.
+    Measured: 0.36-1.25 with, 0.005-0.014 without (deterministic since the rasteriser's backward
+    sums in a fixed order); the weakest view moved between 0.21 and 0.74 with the last bits of the
+    sums under the old dynamic schedule, so the bounds sit at an order of magnitude either side."""
     from gs_outdoor import outdoor_capture, sun_pixels
 
     from backbones.gs.model import cpu_preset
@@ -301,5 +303,5 @@ def test_short_run_keeps_the_sun(tmp_path):
                 sun = sun_pixels(view.camera)
                 assert not unbounded or float(frame.ldr[sun].max()) >= 0.95, "the sun is clipped in LDR"
                 ratios[unbounded].append(float(frame.hdr[sun].max()) / float(view.hdr.max()))
-    assert min(ratios[True]) > 0.25, ratios
-    assert max(ratios[False]) < 0.1, ratios
+    assert min(ratios[True]) > 0.1, ratios
+    assert max(ratios[False]) < 0.05, ratios

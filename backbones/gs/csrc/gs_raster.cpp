@@ -677,7 +677,9 @@ void rasterize_backward_tiles(const float* mu, const float* con, const float* op
     alignas(64) float T[kTilePixels], T_final[kTilePixels], v_alpha_pix[kTilePixels];
     alignas(64) int32_t last_idx[kTilePixels];
     std::vector<f8> s_val(C);
-#pragma omp for schedule(dynamic, 1)
+    // Round-robin, not dynamic: which thread's buffer a tile sums into must not depend on timing,
+    // or the float sums (and a whole training run) change from run to run.
+#pragma omp for schedule(static, 1)
     for (int tile = 0; tile < tiles_x * tiles_y; ++tile) {
       const TileGeometry tg = tile_geometry(tile, tiles_x, width, height);
       int max_last = -1;
