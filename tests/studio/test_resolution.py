@@ -1,6 +1,7 @@
 """Studio scenes at any size: `--resolution N` for scenes, synth, train --scene and the benchmarks."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,7 +11,15 @@ from mono_hdr_plugin.apps.bench.curves import BenchCurvesConfig, curve_specs
 from mono_hdr_plugin.apps.bench.runs import RunSpec
 from mono_hdr_plugin.apps.studio.commands import SynthConfig, list_scenes, synth
 from mono_hdr_plugin.apps.studio.dataset import get_scene
-from mono_hdr_plugin.apps.studio.render import render_cache_path, render_minutes
+from mono_hdr_plugin.apps.studio.render import (
+    measured_view_seconds,
+    record_view_seconds,
+    render_cache_path,
+    render_minutes,
+    render_scene,
+    render_time_text,
+    render_times_path,
+)
 from mono_hdr_plugin.core.validation import FlagError
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.loading import load_scene
@@ -31,9 +40,50 @@ def test_each_size_is_cached_apart():
     assert get_scene("demo") is get_scene("demo", None)
 
 
-def test_render_time_notice_scales_with_the_pixels():
-    assert render_minutes(get_scene("demo", 256)) == pytest.approx(4 * render_minutes(get_scene("demo", 128)))
-    assert render_minutes(get_scene("demo", 128)) == pytest.approx(2)
+def builtin(name: str, size: int):
+    """The real built-in scene (tests otherwise see tiny variants, tests/conftest.py) at a size."""
+    from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES
+
+    return replace(next(scene for scene in BUILTIN_SCENES if scene.name == name), resolution=(size, size))
+
+
+class TestRenderTimeEstimate:
+    @pytest.fixture(autouse=True)
+    def own_cache(self, monkeypatch, tmp_path):
+        monkeypatch.setenv("MONO_HDR_CACHE", str(tmp_path / "cache"))
+
+    def test_a_scene_never_rendered_here_is_guessed_at_demos_rate_per_sample(self):
+        assert len(builtin("demo", 128).cameras()) == 35
+        assert render_minutes(builtin("demo", 128)) == pytest.approx(2)  # demo's 35 views took 2 minutes
+        assert render_minutes(builtin("demo", 256)) == pytest.approx(8)
+        assert builtin("lamp-room", 128).spp == 289 and builtin("demo", 128).spp == 121
+        assert render_minutes(builtin("lamp-room", 128)) == pytest.approx(2 * 289 / 121)
+        assert "guess" in render_time_text(builtin("lamp-room", 128))
+
+    def test_a_measured_render_sets_the_estimate_of_that_scene_at_every_size(self):
+        record_view_seconds(builtin("lamp-room", 64), 10.0)
+        assert measured_view_seconds(builtin("lamp-room", 128)) == pytest.approx(40.0)
+        assert render_minutes(builtin("lamp-room", 128)) == pytest.approx(40.0 * 35 / 60)
+        assert "measured" in render_time_text(builtin("lamp-room", 512))
+        assert measured_view_seconds(builtin("demo", 128)) is None
+        assert render_minutes(builtin("demo", 128)) == pytest.approx(2)
+
+    def test_a_damaged_times_file_falls_back_to_the_guess(self):
+        render_times_path().parent.mkdir(parents=True)
+        render_times_path().write_text('{"lamp-room": ')
+        assert measured_view_seconds(builtin("lamp-room", 128)) is None
+        record_view_seconds(builtin("lamp-room", 128), 5.0)  # and is replaced by the next render
+        assert measured_view_seconds(builtin("lamp-room", 128)) == pytest.approx(5.0)
+
+    def test_a_render_records_its_time_and_says_how_long_is_left(self, capsys):
+        from conftest import tiny_variant
+
+        scene = tiny_variant(get_scene("demo", 24))
+        render_scene(scene)
+        assert "left (timed on its second view)" in capsys.readouterr().err
+        view_seconds = measured_view_seconds(scene)
+        assert view_seconds is not None and 0 < view_seconds < 60
+        assert "measured" in render_time_text(replace(scene, resolution=(48, 48)))
 
 
 def test_train_scene_at_a_size():

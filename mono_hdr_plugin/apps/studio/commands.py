@@ -7,6 +7,7 @@ from typing import ClassVar
 from mono_hdr_plugin.apps.studio.render import (
     cache_dir,
     dynamic_range,
+    measured_view_seconds,
     minutes_text,
     render_cache_path,
     render_minutes,
@@ -134,10 +135,12 @@ def list_scenes_command(config: ScenesConfig) -> None:
     missing = [scene for scene in scenes_at(config.resolution) if not render_cache_path(scene).is_file()]
     if config.render and missing:
         minutes = sum(render_minutes(scene) for scene in missing)
+        guessed = [scene.name for scene in missing if measured_view_seconds(scene) is None]
         Console(stderr=True, soft_wrap=True).print(
             f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet at this size "
-            f"({', '.join(scene.name for scene in missing)}): rendering them first, {minutes_text(minutes)} on 2 "
-            "cores, once (cached in "
+            f"({', '.join(scene.name for scene in missing)}): rendering them first, {minutes_text(minutes)}"
+            + (f" (at demo's rate for {', '.join(guessed)}, never rendered here)" if guessed else "")
+            + ", once (cached in "
             f"{cache_dir() / 'studio'}); `mono-hdr scenes --no-render` lists them now without the measured columns",
             markup=False,
             highlight=False,

@@ -14,6 +14,7 @@ than independent or stratified samples on these direct-lit scenes.
 import hashlib
 import json
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.core.cameras import Camera
-from mono_hdr_plugin.data.io import atomic_path
+from mono_hdr_plugin.data.io import atomic_path, write_json
 
 RENDER_VERSION = 2
 """Bump when the rendering code changes what a cached render holds."""
@@ -168,13 +169,57 @@ def luminance(radiance: np.ndarray) -> np.ndarray:
     return radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
-RENDER_MINUTES = 2
-"""About how long one scene takes to render at 128 x 128 on 2 cores (six took 11 minutes), for the notice."""
+DEMO_SAMPLE_SECONDS = 2 * 60 / (35 * 128 * 128 * 121)
+"""Seconds per pixel and sample of a view of demo on 2 cores (its 35 views at 128 x 128 x 121 spp took
+2 minutes): the guess for a scene never rendered on this machine. Path tracing costs about the same
+per sample, but scenes still differ by their geometry and lights."""
+
+
+def render_times_path() -> Path:
+    return cache_dir() / "studio" / "render-times.json"
+
+
+def _render_times() -> dict:
+    """Seconds per pixel and sample of a view, per scene, measured on this machine ({} if none; a
+    damaged file only costs the estimate)."""
+    path = render_times_path()
+    try:
+        times = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError):
+        return {}
+    return times if isinstance(times, dict) else {}
+
+
+def measured_view_seconds(scene: StudioScene) -> float | None:
+    """Seconds one view of `scene` takes at its size and spp, from this machine's last render of it at
+    any size; None if it was never rendered here."""
+    rate = _render_times().get(scene.name)
+    if not isinstance(rate, (int, float)):
+        return None
+    return float(rate) * scene.width * scene.height * scene.spp
+
+
+def record_view_seconds(scene: StudioScene, view_seconds: float) -> None:
+    times = _render_times()
+    times[scene.name] = view_seconds / (scene.width * scene.height * scene.spp)
+    write_json(render_times_path(), times)
 
 
 def render_minutes(scene: StudioScene) -> float:
-    """About how long rendering `scene` takes on 2 cores: path tracing costs the same per pixel."""
-    return RENDER_MINUTES * scene.width * scene.height / (128 * 128)
+    """About how long rendering every view of `scene` takes on this machine: measured here before,
+    else at demo's rate per sample."""
+    view = measured_view_seconds(scene)
+    if view is None:
+        view = DEMO_SAMPLE_SECONDS * scene.width * scene.height * scene.spp
+    return view * len(scene.cameras()) / 60
+
+
+def render_time_text(scene: StudioScene) -> str:
+    """The notice's estimate, saying whether it was measured or is a guess."""
+    text = minutes_text(render_minutes(scene))
+    if measured_view_seconds(scene) is None:
+        return f"{text} at demo's rate per sample (a guess until the second view is timed)"
+    return f"{text}, at the rate measured here before"
 
 
 def minutes_text(minutes: float) -> str:
@@ -204,25 +249,32 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     cameras = scene.cameras()
     console.print(
         f"rendering studio scene {scene.name} at {scene.width}x{scene.height} with Mitsuba ({len(cameras)} views x 2 "
-        f"x {scene.spp} spp, {minutes_text(render_minutes(scene))} on 2 cores)"
+        f"x {scene.spp} spp, {render_time_text(scene)})"
         + (f"; cached in {path.parent} for next time" if use_cache else ""),
         markup=False,
         highlight=False,
     )
     mitsuba = _mitsuba()
     content = _to_mitsuba(scene.content(), mitsuba)
-    first_views, second_views, positions, hit = [], [], [], []
+    first_views, second_views, positions, hit, view_seconds = [], [], [], [], []
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task(
             f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)", total=len(cameras)
         )
         for index, camera in enumerate(cameras):
+            started = time.perf_counter()
             first_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index))
             second_views.append(_render_view(content, camera, scene, mitsuba, seed=2 * index + 1))
             position, visible = _render_geometry(content, camera, mitsuba)
             positions.append(position)
             hit.append(visible)
+            view_seconds.append(time.perf_counter() - started)
             progress.advance(task)
+            if index == 1 and len(cameras) > 2:  # the first view also pays Mitsuba's set-up
+                left = minutes_text(view_seconds[1] * (len(cameras) - 2) / 60)
+                console.print(f"{scene.name}: {left} left (timed on its second view)", markup=False, highlight=False)
+    if use_cache and len(view_seconds) > 1:
+        record_view_seconds(scene, float(np.median(view_seconds[1:])))
     first, second = np.stack(first_views), np.stack(second_views)
     scale = np.float32(radiance_scale(0.5 * (first + second), scene))
     first, second = first * scale, second * scale
