@@ -75,12 +75,17 @@ class TestRenderTimeEstimate:
         record_view_seconds(builtin("lamp-room", 128), 5.0)  # and is replaced by the next render
         assert measured_view_seconds(builtin("lamp-room", 128)) == pytest.approx(5.0)
 
-    def test_a_render_records_its_time_and_says_how_long_is_left(self, capsys):
+    def test_a_render_records_its_time_and_says_how_long_is_left(self, capsys, monkeypatch):
         from conftest import tiny_variant
 
+        from mono_hdr_plugin.apps.studio import render as render_module
+
+        monkeypatch.setattr(render_module, "LOG_EVERY_SECONDS", 0.0)  # a log, not a terminal: a line a view
         scene = tiny_variant(get_scene("demo", 24))
         render_scene(scene)
-        assert "left (timed on its second view)" in capsys.readouterr().err
+        lines = [line for line in capsys.readouterr().err.splitlines() if " views, " in line]
+        assert lines[0] == "demo: 2 of 10 views, under a minute left"
+        assert len(lines) == 8 and lines[-1].startswith("demo: 9 of 10 views")
         view_seconds = measured_view_seconds(scene)
         assert view_seconds is not None and 0 < view_seconds < 60
         assert "measured" in render_time_text(replace(scene, resolution=(48, 48)))

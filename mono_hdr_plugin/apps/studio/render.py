@@ -243,7 +243,6 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
         with np.load(path) as cached:
             return SceneRender(**{name: cached[name] for name in SceneRender.__dataclass_fields__})
     from rich.console import Console
-    from rich.progress import Progress
 
     console = Console(stderr=True, soft_wrap=True)
     cameras = scene.cameras()
@@ -254,9 +253,34 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
         markup=False,
         highlight=False,
     )
+    first_views, second_views, positions, hit, view_seconds = _render_views(scene, cameras, console)
+    if use_cache and len(view_seconds) > 1:
+        record_view_seconds(scene, float(np.mean(view_seconds[1:])))
+    first, second = np.stack(first_views), np.stack(second_views)
+    scale = np.float32(radiance_scale(0.5 * (first + second), scene))
+    first, second = first * scale, second * scale
+    hdr_agreement, ldr_agreement = seed_agreement(first, second, scene)
+    render = SceneRender(0.5 * (first + second), np.stack(positions), np.stack(hit), hdr_agreement, ldr_agreement)
+    if use_cache:
+        with atomic_path(path) as temporary, open(temporary, "wb") as handle:
+            np.savez(handle, **{name: getattr(render, name) for name in SceneRender.__dataclass_fields__})
+    return render
+
+
+LOG_EVERY_SECONDS = 30.0
+"""Where the output is not a terminal (a log, CI), a plain progress line at most this often."""
+
+
+def _render_views(scene: StudioScene, cameras: list[Camera], console) -> tuple[list, list, list, list, list[float]]:
+    """Two radiance renders (two seeds), the surface points and coverage of every view, and each view's
+    seconds. Says the time left after the second view (the first also pays Mitsuba's set-up), then, where
+    the output is not a terminal, every LOG_EVERY_SECONDS; a terminal gets a progress bar."""
+    from rich.progress import Progress
+
     mitsuba = _mitsuba()
     content = _to_mitsuba(scene.content(), mitsuba)
     first_views, second_views, positions, hit, view_seconds = [], [], [], [], []
+    logged_at = time.monotonic()
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task(
             f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)", total=len(cameras)
@@ -270,20 +294,16 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
             hit.append(visible)
             view_seconds.append(time.perf_counter() - started)
             progress.advance(task)
-            if index == 1 and len(cameras) > 2:  # the first view also pays Mitsuba's set-up
-                left = minutes_text(view_seconds[1] * (len(cameras) - 2) / 60)
-                console.print(f"{scene.name}: {left} left (timed on its second view)", markup=False, highlight=False)
-    if use_cache and len(view_seconds) > 1:
-        record_view_seconds(scene, float(np.median(view_seconds[1:])))
-    first, second = np.stack(first_views), np.stack(second_views)
-    scale = np.float32(radiance_scale(0.5 * (first + second), scene))
-    first, second = first * scale, second * scale
-    hdr_agreement, ldr_agreement = seed_agreement(first, second, scene)
-    render = SceneRender(0.5 * (first + second), np.stack(positions), np.stack(hit), hdr_agreement, ldr_agreement)
-    if use_cache:
-        with atomic_path(path) as temporary, open(temporary, "wb") as handle:
-            np.savez(handle, **{name: getattr(render, name) for name in SceneRender.__dataclass_fields__})
-    return render
+            due = not console.is_terminal and time.monotonic() - logged_at >= LOG_EVERY_SECONDS
+            if index + 1 < len(cameras) and (index == 1 or (index > 1 and due)):
+                logged_at = time.monotonic()
+                left = float(np.mean(view_seconds[1:])) * (len(cameras) - index - 1) / 60
+                console.print(
+                    f"{scene.name}: {index + 1} of {len(cameras)} views, {minutes_text(left)} left",
+                    markup=False,
+                    highlight=False,
+                )
+    return first_views, second_views, positions, hit, view_seconds
 
 
 def seed_agreement(first: np.ndarray, second: np.ndarray, scene: StudioScene) -> tuple[np.ndarray, np.ndarray]:
