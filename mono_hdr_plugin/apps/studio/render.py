@@ -169,10 +169,10 @@ def luminance(radiance: np.ndarray) -> np.ndarray:
     return radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
-DEMO_SAMPLE_SECONDS = 2 * 60 / (35 * 128 * 128 * 121)
-"""Seconds per pixel and sample of a view of demo on 2 cores (its 35 views at 128 x 128 x 121 spp took
-2 minutes): the guess for a scene never rendered on this machine. Path tracing costs about the same
-per sample, but scenes still differ by their geometry and lights."""
+DEMO_SAMPLE_SECONDS = 20.2 * 60 / (35 * 512 * 512 * 121)
+"""Seconds per pixel and sample of a view of demo on 2 cores (its 35 views at 512 x 512 x 121 spp took
+20.2 minutes, alone on the machine): the guess for a scene never rendered on this machine. Path
+tracing costs about the same per sample, but scenes still differ by their geometry and lights."""
 
 
 def render_times_path() -> Path:
