@@ -76,13 +76,12 @@ class TestRenderTimeEstimate:
         record_view_seconds(builtin("lamp-room", 128), 5.0)  # and is replaced by the next render
         assert measured_view_seconds(builtin("lamp-room", 128)) == pytest.approx(5.0)
 
-    def test_a_render_records_its_time_and_says_how_long_is_left(self, capsys, monkeypatch):
-        from conftest import tiny_variant
-
+    def test_a_render_records_its_time_and_says_how_long_is_left(self, capsys, monkeypatch, tiny_demo):
         from mono_hdr_plugin.apps.studio import render as render_module
 
         monkeypatch.setattr(render_module, "LOG_EVERY_SECONDS", 0.0)  # a log, not a terminal: a line a view
-        scene = tiny_variant(get_scene("demo", 24))
+        scene = tiny_demo
+        assert not render_cache_path(scene).is_file()  # this test's own cache
         render_scene(scene)
         lines = [line for line in capsys.readouterr().err.splitlines() if " views, " in line]
         assert lines[0] == "demo: 2 of 10 views, under a minute left"
