@@ -6,13 +6,14 @@ import contextlib
 import math
 import signal
 import threading
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from mono_hdr_plugin.core.progress import PlainProgressLines, duration_text
 
 if TYPE_CHECKING:  # annotations only: the trainer imports this module
     from mono_hdr_plugin.training.trainer import Trainer
@@ -63,24 +64,10 @@ def seconds_left(trainer: Trainer) -> float | None:
     return training + evaluations * sum(measured) / len(measured)
 
 
-def duration_text(seconds: float | None) -> str:
-    """`42 s`, `4 min 05 s`, `1 h 05 min`; `?` when not known yet."""
-    if seconds is None:
-        return "?"
-    whole = round(seconds)
-    if whole < 60:
-        return f"{whole} s"
-    if whole < 3600:
-        return f"{whole // 60} min {whole % 60:02d} s"
-    return f"{whole // 3600} h {whole % 3600 // 60:02d} min"
-
-
 class ProgressBar(TrainingHook):
     """A rich progress bar with the loss, the training-view LDR PSNR and the time left (seconds_left);
     where the output is not a terminal (a log file, CI), where rich would draw nothing until the end, a
-    plain line every LOG_EVERY_SECONDS instead."""
-
-    LOG_EVERY_SECONDS = 30.0
+    plain line every LOG_EVERY_SECONDS instead (core/progress.py)."""
 
     def on_start(self, trainer: Trainer) -> None:
         self.progress = Progress(
@@ -100,7 +87,7 @@ class ProgressBar(TrainingHook):
             psnr=math.nan,
             left=duration_text(seconds_left(trainer)),
         )
-        self.logged_at = time.monotonic()
+        self.plain_lines = PlainProgressLines(console)
         if console.is_terminal:
             self.progress.start()
         else:
@@ -116,12 +103,10 @@ class ProgressBar(TrainingHook):
             psnr=record["ldr_psnr"],
             left=left,
         )
-        if not console.is_terminal and time.monotonic() - self.logged_at >= self.LOG_EVERY_SECONDS:
-            self.logged_at = time.monotonic()
-            console.print(
-                f"step {trainer.step}/{trainer.run_length}: loss {record['loss']:.4f}, "
-                f"LDR PSNR {record['ldr_psnr']:.2f} dB, {trainer.train_seconds:.0f} s, about {left} left"
-            )
+        self.plain_lines.print(
+            f"step {trainer.step}/{trainer.run_length}: loss {record['loss']:.4f}, "
+            f"LDR PSNR {record['ldr_psnr']:.2f} dB, {trainer.train_seconds:.0f} s, about {left} left"
+        )
 
     def on_end(self, trainer: Trainer) -> None:
         self.progress.stop()

@@ -1,22 +1,26 @@
 """Training's progress where the output is not a terminal (a log file, CI): plain lines, not silence."""
 
+import io
 from types import SimpleNamespace
 
 import pytest
 import register_backbone
 from helpers import FakeClock
 from known_render import KnownRenderConfig
+from rich.console import Console
 from test_calibration import known_scene
 
+from mono_hdr_plugin.core import progress
+from mono_hdr_plugin.core.progress import PlainProgressLines, duration_text
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.hooks import EvaluateEvery, ProgressBar, TrainingHook, duration_text, seconds_left
+from mono_hdr_plugin.training.hooks import EvaluateEvery, ProgressBar, TrainingHook, seconds_left
 from mono_hdr_plugin.training.pyramid import ImagePyramid
 from mono_hdr_plugin.training.trainer import Trainer
 
 
 class TestProgressInALog:
     def test_plain_lines_while_training(self, tmp_path, capsys, monkeypatch):
-        monkeypatch.setattr(ProgressBar, "LOG_EVERY_SECONDS", 0.0)  # a line after every step
+        monkeypatch.setattr(progress, "LOG_EVERY_SECONDS", 0.0)  # a line after every step
         config = train_config_for(KnownRenderConfig)(
             backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=False, max_steps=3, save_renders=False
         )
@@ -28,6 +32,31 @@ class TestProgressInALog:
             "step 2/3",
             "step 3/3",
         ]
+
+
+class TestPlainProgressLines:
+    """At most a line every LOG_EVERY_SECONDS where the output is not a terminal; in a terminal (which has
+    the progress bar) only the lines asked for always."""
+
+    def lines(self, monkeypatch, is_terminal: bool, seconds_apart: list[float], always: int = -1) -> list[str]:
+        now = [0.0]
+        monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+        console = Console(file=io.StringIO(), force_terminal=is_terminal, width=200)
+        lines = PlainProgressLines(console)
+        for index, seconds in enumerate(seconds_apart):
+            now[0] += seconds
+            lines.print(f"line {index}", always=index == always)
+        return console.file.getvalue().splitlines()
+
+    def test_a_log_gets_a_line_every_interval(self, monkeypatch):
+        # 10 s apart: due at 30 s, then 30 s after that line, not after the start
+        assert self.lines(monkeypatch, False, [10.0] * 7) == ["line 2", "line 5"]
+
+    def test_a_line_always_printed_restarts_the_interval(self, monkeypatch):
+        assert self.lines(monkeypatch, False, [10.0] * 7, always=1) == ["line 1", "line 4"]
+
+    def test_a_terminal_gets_only_the_lines_always_printed(self, monkeypatch):
+        assert self.lines(monkeypatch, True, [40.0] * 3, always=1) == ["line 1"]
 
 
 class TestTimeLeft:
@@ -78,7 +107,7 @@ class TestTimeLeft:
         assert self.run(tmp_path, clock, max_steps=3, max_seconds=100.0) == pytest.approx([1.0, 0.5, 0.0])
 
     def test_the_log_line_says_it(self, tmp_path, capsys, monkeypatch, clock):
-        monkeypatch.setattr(ProgressBar, "LOG_EVERY_SECONDS", 0.0)
+        monkeypatch.setattr(progress, "LOG_EVERY_SECONDS", 0.0)
         config = train_config_for(KnownRenderConfig)(
             backbone=KnownRenderConfig(), out=tmp_path / "run", quiet=False, max_steps=3, save_renders=False
         )
@@ -86,7 +115,17 @@ class TestTimeLeft:
         lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("step ")]
         assert [line.rsplit(", ", 1)[1] for line in lines] == ["about 1 s left", "about 0 s left", "about 0 s left"]
 
-    @pytest.mark.parametrize("seconds, text", [(None, "?"), (42.4, "42 s"), (245, "4 min 05 s"), (3900, "1 h 05 min")])
+    @pytest.mark.parametrize(
+        "seconds, text",
+        [
+            (None, "?"),
+            (42.4, "42 s"),
+            (245, "4 min 05 s"),
+            (599.4, "9 min 59 s"),
+            (1935, "32 min"),
+            (3900, "1 h 05 min"),
+        ],
+    )
     def test_duration_text(self, seconds, text):
         assert duration_text(seconds) == text
 

@@ -5,10 +5,9 @@ from pathlib import Path
 from typing import ClassVar
 
 from mono_hdr_plugin.apps.studio.render import (
+    about_minutes,
     cache_dir,
     dynamic_range,
-    measured_view_seconds,
-    minutes_text,
     render_cache_path,
     render_minutes,
     render_scene,
@@ -134,11 +133,12 @@ def list_scenes_command(config: ScenesConfig) -> None:
         table.add_column(column)
     missing = [scene for scene in scenes_at(config.resolution) if not render_cache_path(scene).is_file()]
     if config.render and missing:
-        minutes = sum(render_minutes(scene) for scene in missing)
-        guessed = [scene.name for scene in missing if measured_view_seconds(scene) is None]
+        estimates = {scene.name: render_minutes(scene) for scene in missing}
+        minutes = sum(minutes for minutes, _ in estimates.values())
+        guessed = [name for name, (_, measured) in estimates.items() if not measured]
         Console(stderr=True, soft_wrap=True).print(
             f"{len(missing)} of {len(SCENES)} built-in scenes are not rendered yet at this size "
-            f"({', '.join(scene.name for scene in missing)}): rendering them first, {minutes_text(minutes)}"
+            f"({', '.join(scene.name for scene in missing)}): rendering them first, {about_minutes(minutes)}"
             + (f" (at demo's rate for {', '.join(guessed)}, never rendered here)" if guessed else "")
             + ", once (cached in "
             f"{cache_dir() / 'studio'}); `mono-hdr scenes --no-render` lists them now without the measured columns",

@@ -22,6 +22,7 @@ import numpy as np
 
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.core.cameras import Camera
+from mono_hdr_plugin.core.progress import PlainProgressLines, duration_text
 from mono_hdr_plugin.data.io import atomic_path, write_json
 
 RENDER_VERSION = 2
@@ -205,30 +206,26 @@ def record_view_seconds(scene: StudioScene, view_seconds: float) -> None:
     write_json(render_times_path(), times)
 
 
-def render_minutes(scene: StudioScene) -> float:
-    """About how long rendering every view of `scene` takes on this machine: measured here before,
-    else at demo's rate per sample."""
+def render_minutes(scene: StudioScene) -> tuple[float, bool]:
+    """About how long rendering every view of `scene` takes on this machine, and whether that was
+    measured here before (else it is a guess at demo's rate per sample)."""
     view = measured_view_seconds(scene)
+    measured = view is not None
     if view is None:
         view = DEMO_SAMPLE_SECONDS * scene.width * scene.height * scene.spp
-    return view * len(scene.cameras()) / 60
+    return view * len(scene.cameras()) / 60, measured
 
 
 def render_time_text(scene: StudioScene) -> str:
     """The notice's estimate, saying whether it was measured or is a guess."""
-    text = minutes_text(render_minutes(scene))
-    if measured_view_seconds(scene) is None:
-        return f"{text} at demo's rate per sample (a guess until the second view is timed)"
-    return f"{text}, at the rate measured here before"
+    minutes, measured = render_minutes(scene)
+    if not measured:
+        return f"{about_minutes(minutes)} at demo's rate per sample (a guess until the second view is timed)"
+    return f"{about_minutes(minutes)}, at the rate measured here before"
 
 
-def minutes_text(minutes: float) -> str:
-    """`under a minute`, `about 2 minutes`, `about 32 minutes`, `about 3.4 hours`."""
-    if minutes < 1:
-        return "under a minute"
-    if minutes >= 90:
-        return f"about {minutes / 60:.1f} hours"
-    return f"about {round(minutes)} minute{'' if round(minutes) == 1 else 's'}"
+def about_minutes(minutes: float) -> str:
+    return f"about {duration_text(minutes * 60)}"
 
 
 def render_cache_path(scene: StudioScene) -> Path:
@@ -267,20 +264,17 @@ def render_scene(scene: StudioScene, use_cache: bool = True) -> SceneRender:
     return render
 
 
-LOG_EVERY_SECONDS = 30.0
-"""Where the output is not a terminal (a log, CI), a plain progress line at most this often."""
-
-
 def _render_views(scene: StudioScene, cameras: list[Camera], console) -> tuple[list, list, list, list, list[float]]:
     """Two radiance renders (two seeds), the surface points and coverage of every view, and each view's
     seconds. Says the time left after the second view (the first also pays Mitsuba's set-up), then, where
-    the output is not a terminal, every LOG_EVERY_SECONDS; a terminal gets a progress bar."""
+    the output is not a terminal, every LOG_EVERY_SECONDS (core/progress.py); a terminal gets a
+    progress bar."""
     from rich.progress import Progress
 
     mitsuba = _mitsuba()
     content = _to_mitsuba(scene.content(), mitsuba)
     first_views, second_views, positions, hit, view_seconds = [], [], [], [], []
-    logged_at = time.monotonic()
+    plain_lines = PlainProgressLines(console)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task(
             f"rendering {scene.name} ({len(cameras)} views x 2 x {scene.spp} spp)", total=len(cameras)
@@ -294,14 +288,10 @@ def _render_views(scene: StudioScene, cameras: list[Camera], console) -> tuple[l
             hit.append(visible)
             view_seconds.append(time.perf_counter() - started)
             progress.advance(task)
-            due = not console.is_terminal and time.monotonic() - logged_at >= LOG_EVERY_SECONDS
-            if index + 1 < len(cameras) and (index == 1 or (index > 1 and due)):
-                logged_at = time.monotonic()
+            if 1 <= index < len(cameras) - 1:
                 left = float(np.mean(view_seconds[1:])) * (len(cameras) - index - 1) / 60
-                console.print(
-                    f"{scene.name}: {index + 1} of {len(cameras)} views, {minutes_text(left)} left",
-                    markup=False,
-                    highlight=False,
+                plain_lines.print(
+                    f"{scene.name}: {index + 1} of {len(cameras)} views, {about_minutes(left)} left", always=index == 1
                 )
     return first_views, second_views, positions, hit, view_seconds
 
