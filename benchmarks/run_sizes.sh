@@ -6,7 +6,7 @@
 # Each command is its own process (its peak memory is its own); run it with nothing else on the
 # machine (2 cores):
 #   bash benchmarks/run_sizes.sh [OUT] ["SCENE ..."]
-# Each scene is rendered at 512 px first, once (demo: 20 minutes alone, lamp-room about 50); rows already in OUT's
+# Each scene is rendered at 512 px first, once (demo: 20 minutes alone, lamp-room about 70); rows already in OUT's
 # curves.json are not run again, so a second scene adds its rows beside the first's.
 set -euo pipefail
 export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=17179869184
