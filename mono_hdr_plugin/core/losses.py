@@ -28,3 +28,23 @@ def photometric_loss(pred: Tensor, target: Tensor, kind: LossKind, dssim_weight:
     if pred.dim() == 3:
         return l1_dssim_loss(pred, target, dssim_weight)
     return (pred - target).abs().mean()
+
+
+LOG_FLOOR = 1e-4
+"""scale_invariant_log_loss adds this fraction of the target's mean to both images before the log: a
+dead channel (0) costs a large but finite error with a bounded gradient."""
+
+
+def scale_invariant_log_loss(pred: Tensor, target: Tensor) -> Tensor:
+    """min over c of mean |d - c| over the entries of two HDR radiances [N, 3], d = log pred - log target.
+
+    A relative error, blind to the overall level (as L_hdr is, which divides each image by its own
+    maximum): a pixel at 1e-6 of the sun's radiance whose red channel is dead costs as much as a sun
+    pixel off by the same factor, where mu-law over the maximum barely sees it. The minimising c is
+    d's median (the midpoint of the two middle values); it is held constant in the gradient, which is
+    then the gradient of the minimum."""
+    floor = LOG_FLOOR * target.mean().detach()
+    difference = torch.log(pred + floor) - torch.log(target + floor)
+    flat = difference.detach().flatten()
+    middle = 0.5 * (flat.kthvalue((flat.numel() + 1) // 2).values + flat.kthvalue(flat.numel() // 2 + 1).values)
+    return (difference - middle).abs().mean()

@@ -14,8 +14,9 @@ import tyro
 from torch import Tensor, nn
 
 from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR, LdrFeatures
+from mono_hdr_plugin.core.calibration import well_exposed
 from mono_hdr_plugin.core.configs import SAVED_IN_PARENT
-from mono_hdr_plugin.core.losses import LossKind, photometric_loss
+from mono_hdr_plugin.core.losses import LossKind, photometric_loss, scale_invariant_log_loss
 from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 from mono_hdr_plugin.core.validation import FRACTION, NON_NEGATIVE, POSITIVE, at_least, iter_flags
@@ -52,6 +53,11 @@ class MethodConfig:
     truth's maximum, so the HDR's absolute level is trained too (L_hdr divides each by its own
     maximum, which leaves the level free). 0: off, the paper's recipe; the radiance calibration
     sets the level of every output either way (docs/method.md, "Calibrated HDR")."""
+    hdr_log_weight: float = 0.0
+    """Weight of L_log: the HDR render against the HDR ground truth as a relative error (log ratio, blind
+    to the level) over the pixels the LDR photo exposes well, so a wrong colour away from the brightest
+    pixels costs as much as one near them (on a 1e6 : 1 sky L_hdr's mu-law over the maximum puts every
+    pixel but the sun's below 0.02). 0: off, the paper's recipe."""
     beta: float | None = None
     """Weight of L_h2l; default 0.05 with the 3DGS loss, 0.01 with the NeRF loss."""
     loss: Literal["auto", "l1_dssim", "mse"] = "auto"
@@ -68,6 +74,7 @@ class MethodConfig:
         "hidden": at_least(1),
         "alpha": NON_NEGATIVE,
         "hdr_scale_anchor": NON_NEGATIVE,
+        "hdr_log_weight": NON_NEGATIVE,
         "beta": NON_NEGATIVE,
         "dssim_weight": FRACTION,
         "converter_lr": POSITIVE,
@@ -168,6 +175,11 @@ class HdrMethod(nn.Module):
             peak = targets.hdr.max()
             anchored = self._loss(normalise_hdr(output.hdr, peak), normalise_hdr(targets.hdr, peak))
             terms["hdr_anchor"] = config.hdr_scale_anchor * anchored
+        if config.hdr_log_weight and targets.hdr is not None:
+            exposed = well_exposed(targets.ldr)
+            if exposed.any():
+                relative = scale_invariant_log_loss(output.hdr[exposed], targets.hdr[exposed])
+                terms["hdr_log"] = config.hdr_log_weight * relative
         return terms
 
     def parameter_groups(self) -> list[dict]:

@@ -65,6 +65,15 @@ def photometric(pred: torch.Tensor, target: torch.Tensor, kind: str) -> torch.Te
     return 0.8 * l1 + 0.2 * (1 - ssim(pred, target))
 
 
+def relative_hdr_error(hdr: torch.Tensor, truth: torch.Tensor, photo: torch.Tensor) -> torch.Tensor:
+    """min over c of mean |log(hdr + f) - log(truth + f) - c| over the pixels whose photo channels all lie in
+    (0.05, 0.95), f = 1e-4 x the truth's mean there; the minimiser c (a median) held constant."""
+    exposed = ((photo > 0.05) & (photo < 0.95)).all(-1)
+    floor = 1e-4 * truth[exposed].mean()
+    log_ratio = torch.log(hdr[exposed] + floor) - torch.log(truth[exposed] + floor)
+    return (log_ratio - torch.quantile(log_ratio.detach().flatten().double(), 0.5).to(log_ratio.dtype)).abs().mean()
+
+
 def reference_images(method, features, exposure: float):
     """(LDR, HDR, H2L(normalised HDR) or None), written out from the paper, not from method.forward."""
     if method.config.method in BASELINES:
@@ -92,6 +101,8 @@ def reference_terms(pipeline, camera, targets, config, kind: str, beta: float) -
         terms["hdr"] = config.alpha * photometric(normalised(hdr), normalised(targets.hdr), kind)
     if config.use_h2l_loss and from_hdr is not None:
         terms["h2l"] = beta * photometric(from_hdr, targets.ldr, kind)
+    if config.hdr_log_weight and targets.hdr is not None:
+        terms["hdr_log"] = config.hdr_log_weight * relative_hdr_error(hdr, targets.hdr, targets.ldr)
     if config.method == "hdr-nerf":
         unit = method.crf(torch.zeros(1, 3))
         options = config.options
@@ -220,6 +231,12 @@ class TestEveryLossSwitch:
         trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", alpha=0.25, beta=0.7, loss="l1_dssim")
         record, _ = check_step(StepProbe(trainer), "voxel-grid")
         assert trainer.method.beta == 0.7 and trainer.method.loss_kind == "l1_dssim"
+
+    @pytest.mark.parametrize("backbone", ["voxel-grid", "gs"])
+    def test_relative_hdr_term(self, tmp_path, voxel_scene, backbone):
+        trainer = make_trainer(tmp_path, voxel_scene, backbone, hdr_log_weight=0.3)
+        record, reached = check_step(StepProbe(trainer), backbone)
+        assert record["hdr_log"] > 0 and reached == {"backbone", "l2h", "h2l"}
 
     def test_hdr_nerf_unit_exposure_weight(self, tmp_path, voxel_scene):
         trainer = make_trainer(

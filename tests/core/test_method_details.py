@@ -3,6 +3,7 @@ initialisation, default widths, auxiliary (coarse) renders, the log-radiance cap
 
 import math
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
@@ -16,9 +17,9 @@ from mono_hdr_plugin.core.converters import (
     PlainH2L,
     PlainL2H,
 )
-from mono_hdr_plugin.core.losses import photometric_loss
+from mono_hdr_plugin.core.losses import LOG_FLOOR, photometric_loss
 from mono_hdr_plugin.core.metrics import ssim
-from mono_hdr_plugin.methods.base import MethodConfig, Targets, build_method
+from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method
 from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
 
 
@@ -103,3 +104,32 @@ def test_photometric_loss_default_is_the_3dgs_mix():
     pred, target = torch.rand(12, 12, 3), torch.rand(12, 12, 3)
     expected = 0.8 * (pred - target).abs().mean() + 0.2 * (1 - ssim(pred, target))
     torch.testing.assert_close(photometric_loss(pred, target, "l1_dssim"), expected)
+
+
+class TestRelativeHdrTerm:
+    """--hdr-log-weight W adds W x the scale-invariant log error over the pixels the photo exposes well."""
+
+    def terms(self, weight: float, prediction: torch.Tensor, truth: torch.Tensor, photo: torch.Tensor) -> dict:
+        method = build_method(MethodConfig(method="mono", hdr_log_weight=weight), "mse")
+        return method.losses(MethodOutput(ldr=photo, hdr=prediction), Targets(photo, 1.0, truth), step=0)
+
+    def test_counts_only_well_exposed_pixels(self):
+        truth = torch.rand(8, 8, 3) + 0.1
+        photo = torch.full((8, 8, 3), 0.5)
+        photo[:4] = 1.0  # clipped: the photo holds no colour there
+        wrong_where_clipped = truth.clone()
+        wrong_where_clipped[:4, :, 0] = 0.0
+        assert self.terms(0.5, wrong_where_clipped, truth, photo)["hdr_log"].item() == 0.0
+        wrong_where_exposed = truth.clone()
+        wrong_where_exposed[4:, :, 0] *= 0.01
+        # numpy, from the definition over the exposed half: a third of its entries off by 100x, median 0
+        exposed = truth[4:].double().numpy()
+        floor = LOG_FLOOR * exposed.mean()
+        red = exposed[..., 0]
+        expected = 0.5 * np.abs(np.log(0.01 * red + floor) - np.log(red + floor)).sum() / exposed.size
+        assert self.terms(0.5, wrong_where_exposed, truth, photo)["hdr_log"].item() == pytest.approx(expected, rel=1e-3)
+
+    def test_off_by_default_and_without_exposed_pixels(self):
+        truth = torch.rand(8, 8, 3) + 0.1
+        assert "hdr_log" not in self.terms(0.0, truth * 2, truth, torch.full((8, 8, 3), 0.5))
+        assert "hdr_log" not in self.terms(0.5, truth * 2, truth, torch.ones(8, 8, 3))

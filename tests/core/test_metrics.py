@@ -5,7 +5,7 @@ import pytest
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from mono_hdr_plugin.core.losses import l1_dssim_loss, mse_loss, photometric_loss
+from mono_hdr_plugin.core.losses import LOG_FLOOR, l1_dssim_loss, mse_loss, photometric_loss, scale_invariant_log_loss
 from mono_hdr_plugin.core.metrics import (
     chroma_outliers,
     hdr_metrics,
@@ -118,6 +118,46 @@ class TestLosses:
     def test_zero_for_identical(self):
         image = torch.rand(12, 12, 3)
         assert photometric_loss(image, image, "l1_dssim").item() == pytest.approx(0.0, abs=1e-6)
+
+
+class TestScaleInvariantLogLoss:
+    def test_blind_to_the_level(self):
+        target = torch.rand(50, 3, dtype=torch.float64) * 10 + 0.1
+        assert scale_invariant_log_loss(target, target).item() == 0.0
+        assert scale_invariant_log_loss(37.0 * target, target).item() == pytest.approx(0.0, abs=1e-3)
+
+    def test_a_dead_channel_of_a_dim_pixel_costs_as_much_as_one_of_the_brightest(self):
+        """On a 1e6 : 1 image one pixel's channel off by 10x: the relative term costs the same wherever the
+        pixel lies; the mu-law over the maximum (L_hdr) barely sees it on the dim pixel."""
+        target = torch.ones(100, 3, dtype=torch.float64)
+        target[0] = 1e6  # the sun
+        dim, bright = target.clone(), target.clone()
+        dim[50, 0] /= 10
+        bright[0, 0] /= 10
+        # numpy, from the definition: d = log(p + f) - log(t + f), f = LOG_FLOOR * mean(t); median(d) = 0 here
+        floor = LOG_FLOOR * target.numpy().mean()
+        expected_dim = abs(np.log(0.1 + floor) - np.log(1 + floor)) / 300
+        expected_bright = abs(np.log(1e5 + floor) - np.log(1e6 + floor)) / 300
+        assert scale_invariant_log_loss(dim, target).item() == pytest.approx(expected_dim)
+        assert scale_invariant_log_loss(bright, target).item() == pytest.approx(expected_bright, rel=1e-3)
+        mu_law_dim = (normalise_hdr(dim) - normalise_hdr(target)).abs().mean().item()
+        mu_law_bright = (normalise_hdr(bright) - normalise_hdr(target)).abs().mean().item()
+        assert mu_law_dim < 0.01 * mu_law_bright
+
+    def test_a_dead_channel_costs_a_bounded_gradient(self):
+        target = torch.ones(10, 3, dtype=torch.float64)
+        pred = target.clone().requires_grad_(True)
+        with torch.no_grad():
+            pred[3, 1] = 0.0
+        scale_invariant_log_loss(pred, target).backward()
+        assert torch.isfinite(pred.grad).all()
+        # d/dp |log(p + f)| / 30 at p = 0 is 1 / (30 f), f = LOG_FLOOR * 1
+        assert pred.grad[3, 1].item() == pytest.approx(-1 / (30 * LOG_FLOOR))
+
+    def test_gradcheck(self):
+        target = torch.rand(6, 3, dtype=torch.float64) + 0.5
+        pred = (target * torch.exp(torch.randn(6, 3, dtype=torch.float64))).requires_grad_(True)
+        assert torch.autograd.gradcheck(lambda p: scale_invariant_log_loss(p, target), (pred,))
 
 
 class TestLpips:
