@@ -21,7 +21,14 @@ from mono_hdr_plugin.core.calibration import RadianceCalibration
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
-from mono_hdr_plugin.methods.base import HdrMethod, MethodConfig, MethodOutput, Targets, build_method
+from mono_hdr_plugin.methods.base import (
+    UNBOUNDED_HDR_LOG_WEIGHT,
+    HdrMethod,
+    MethodConfig,
+    MethodOutput,
+    Targets,
+    build_method,
+)
 
 OWNERS = ("backbone", "method", "exposures")
 
@@ -78,6 +85,9 @@ class Pipeline(nn.Module):
         backbone = backbone_class(backbone_config, scene)
         if method_config.converter_lr is None:  # the backbone's default rate for the method's networks
             method_config = dataclasses.replace(method_config, converter_lr=backbone.converter_lr)
+        if method_config.hdr_log_weight is None:
+            weight = UNBOUNDED_HDR_LOG_WEIGHT[backbone_class.loss_kind] if scene.unbounded else 0.0
+            method_config = dataclasses.replace(method_config, hdr_log_weight=weight)
         return cls(backbone_name, backbone, build_method(method_config, backbone_class.loss_kind), exposures)
 
     @property

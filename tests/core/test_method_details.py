@@ -8,7 +8,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mono_hdr_plugin.core.backbone import LdrFeatures
+from mono_hdr_plugin.core.backbone import LdrFeatures, SceneInfo
+from mono_hdr_plugin.core.cameras import Camera, look_at
 from mono_hdr_plugin.core.converters import (
     H2LColorConverter,
     L2HColorConverter,
@@ -20,7 +21,9 @@ from mono_hdr_plugin.core.converters import (
 from mono_hdr_plugin.core.losses import LOG_FLOOR, photometric_loss
 from mono_hdr_plugin.core.metrics import ssim
 from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method
+from mono_hdr_plugin.core.registry import get_backbone
 from mono_hdr_plugin.methods.hdr_nerf import HdrNerfBaseline, HdrNerfOptions
+from mono_hdr_plugin.training.pipeline import Pipeline
 
 
 class TestConverterConstruction:
@@ -106,6 +109,10 @@ def test_photometric_loss_default_is_the_3dgs_mix():
     torch.testing.assert_close(photometric_loss(pred, target, "l1_dssim"), expected)
 
 
+GS_UNBOUNDED_LOG_WEIGHT = 0.0
+"""3DGS keeps the paper's recipe outdoors too (docs/outdoor.md, "The colour under a bright sky")."""
+
+
 class TestRelativeHdrTerm:
     """--hdr-log-weight W adds W x the scale-invariant log error over the pixels the photo exposes well."""
 
@@ -133,3 +140,23 @@ class TestRelativeHdrTerm:
         truth = torch.rand(8, 8, 3) + 0.1
         assert "hdr_log" not in self.terms(0.0, truth * 2, truth, torch.full((8, 8, 3), 0.5))
         assert "hdr_log" not in self.terms(0.5, truth * 2, truth, torch.ones(8, 8, 3))
+
+    @pytest.mark.parametrize(
+        ("backbone", "unbounded", "expected"),
+        [("nerf", True, 0.03), ("nerf", False, 0.0), ("gs", True, GS_UNBOUNDED_LOG_WEIGHT), ("gs", False, 0.0)],
+    )
+    def test_default_weight_is_on_for_nerf_under_an_open_sky(self, backbone, unbounded, expected):
+        """The documented defaults (docs/outdoor.md): 0.03 for NeRF on an unbounded scene, off on interiors;
+        a weight given on the command line is kept."""
+        cameras = [
+            Camera(look_at(torch.tensor([x, -4.0, 0.5]), torch.zeros(3)), 20.0, 20.0, 8.0, 8.0, 16, 16)
+            for x in (-1.0, 0.0, 1.0)
+        ]
+        scene = SceneInfo(
+            bounds_min=-torch.ones(3), bounds_max=torch.ones(3), train_cameras=cameras, unbounded=unbounded
+        )
+        config = get_backbone(backbone).config_class()
+        chosen = Pipeline.create(backbone, config, MethodConfig(method="mono"), scene).method.config.hdr_log_weight
+        assert chosen == expected
+        given = Pipeline.create(backbone, config, MethodConfig(method="mono", hdr_log_weight=0.2), scene)
+        assert given.method.config.hdr_log_weight == 0.2
