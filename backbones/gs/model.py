@@ -20,6 +20,7 @@ from backbones.gs.sky import (
     random_points_in_view,
     uses_environment,
 )
+from backbones.gs.sky_gaussians import SkyGaussians, export_sky, scene_projection, scene_rows, with_sky
 from backbones.gs.strategy import GAUSSIAN_PARAMETERS, REFERENCE_STEPS, DefaultStrategy, McmcStrategy
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
@@ -60,11 +61,20 @@ class GaussianConfig:
     official clone/split/prune); its settings are the --backbone.strategy.* flags."""
     backend: str = "kernel"
     """Rasteriser: "kernel" (C++ CPU extension) or "torch" (the slow reference twin)."""
-    background: Literal["auto", "environment", "none"] = "auto"
+    background: Literal["auto", "environment", "sky-gaussians", "none"] = "auto"
     """What lies behind the splats: "environment" (a learned map of the sky at infinity, composited
-    with the weight the splats leave), "none", or "auto" (environment iff the scene is unbounded)."""
+    with the weight the splats leave), "sky-gaussians" (a fixed shell of Gaussians far around the
+    scene, rasterised with the splats; only their colours learn), "none", or "auto" (environment
+    iff the scene is unbounded)."""
     lr_environment: float = 0.01
     """Learning rate of the environment map's raw colours."""
+    sky_gaussians: int = 4096
+    """With sky-gaussians: about this many, spread evenly over the directions the training cameras see."""
+    sky_scale: float = 0.8
+    """With sky-gaussians: their standard deviation, in units of the shell's point spacing (the
+    square root of the area per point); 0.8 leaves less than 1 % of any pixel uncovered."""
+    lr_sky: float = 0.01
+    """Learning rate of the sky Gaussians' raw colours."""
 
     flag_rules: ClassVar = {
         "sh_degree": between(0, 3),
@@ -79,8 +89,11 @@ class GaussianConfig:
         "lr_opacities": POSITIVE,
         "lr_scales": POSITIVE,
         "lr_quats": POSITIVE,
-        "background": one_of("auto", "environment", "none"),
+        "background": one_of("auto", "environment", "sky-gaussians", "none"),
         "lr_environment": POSITIVE,
+        "sky_gaussians": at_least(1),
+        "sky_scale": POSITIVE,
+        "lr_sky": POSITIVE,
     }
     """The strategy's flags follow its own table (McmcStrategy, DefaultStrategy)."""
 
@@ -133,6 +146,9 @@ class GaussianBackbone(Backbone):
         self.strategy_state = config.strategy.initial_state(n)
         # an nn.Module child when used: its textures reach state_dict and stay out of density control
         self.environment = make_environment(scene) if uses_environment(config.background, scene) else None
+        # likewise a child module, outside GAUSSIAN_PARAMETERS: density control never sees it
+        sky = config.background == "sky-gaussians"
+        self.sky = SkyGaussians(scene, config.sky_gaussians, config.sky_scale) if sky else None
 
     @staticmethod
     def _initial_points(config: GaussianConfig, scene: SceneInfo) -> tuple[Tensor, Tensor]:
@@ -192,6 +208,8 @@ class GaussianBackbone(Backbone):
             groups.append(
                 {"name": "environment", "params": list(self.environment.parameters()), "lr": c.lr_environment}
             )
+        if self.sky is not None:
+            groups.append({"name": "sky", "params": [self.sky.colors], "lr": c.lr_sky})
         return groups
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
@@ -209,28 +227,20 @@ class GaussianBackbone(Backbone):
     def render_ldr_features(self, camera: Camera) -> LdrFeatures:
         """Colours of the V Gaussians visible in `camera` ([V, 3]), then with an environment one
         background row per pixel ([V + H * W, 3], row-major); `composite` takes [rows, C] and adds
-        the background rows with weight 1 - alpha.
+        the background rows with weight 1 - alpha. With sky Gaussians the V rows are the visible
+        scene Gaussians followed by the visible sky Gaussians, rasterised together.
 
         extras: "projected" (the ProjectedGaussians: visible index, screen means whose gradient
-        densification reads, radii), "alpha" [H, W, 1] once `composite` has run, and
-        "render_depth", a function that rasterises expected depth [H, W, 1] (an extra pass,
-        only when called).
+        densification reads, radii; with sky Gaussians their indices follow the scene's N, and
+        after_step hands density control the scene's rows only), "alpha" [H, W, 1] once
+        `composite` has run (the coverage of everything rasterised, the sky included), and
+        "render_depth", a function that rasterises the expected depth of the scene's Gaussians
+        [H, W, 1] (an extra pass, only when called; 0 where no scene Gaussian was hit).
         """
-        scales = torch.exp(self.log_scales.clamp(-20, 20))  # finite, so culled rows never see inf * 0
-        projected = project_gaussians(
-            self.means, self.quats, scales, torch.sigmoid(self.opacity_logits), camera, backend=self.config.backend
-        )
+        projected = self._project(camera)
         if projected.means2d.requires_grad:
             projected.means2d.retain_grad()
-        raw_colors = visible_colors(
-            self.active_sh_degree,
-            self.sh_dc,
-            self.sh_rest,
-            self.means,
-            projected.index,
-            camera.center,
-            backend=self.config.backend,
-        )
+        raw_colors = self._visible_raw_colors(projected, camera)
         visible = raw_colors.shape[0]
         if self.environment is not None:
             raw_colors = torch.cat([raw_colors, background_rows(self.environment, camera)])
@@ -245,13 +255,39 @@ class GaussianBackbone(Backbone):
 
         def render_depth() -> Tensor:
             """Expected depth of the visible surface [H, W, 1], 0 where nothing was hit."""
-            depth, alpha = rasterize(projected, projected.depths[:, None])
+            depths = projected.depths[:, None]
+            if self.sky is None:
+                depth, alpha = rasterize(projected, depths)
+            else:  # the scene's Gaussians only: the sky stands for infinity
+                scene = (projected.index < self.num_gaussians).to(depths.dtype)[:, None]
+                both, _ = rasterize(projected, torch.cat([depths * scene, scene], -1))
+                depth, alpha = both.split(1, -1)
             return depth / alpha.clamp_min(1e-6)
 
         extras["render_depth"] = render_depth
         return LdrFeatures(
             colors=(raw_colors + 0.5).clamp_min(0), raw_colors=raw_colors, composite=composite, extras=extras
         )
+
+    def _project(self, camera: Camera):
+        """The scene's Gaussians (then the sky's, when used) projected into `camera`."""
+        scales = torch.exp(self.log_scales.clamp(-20, 20))  # finite, so culled rows never see inf * 0
+        gaussians = (self.means, self.quats, scales, torch.sigmoid(self.opacity_logits))
+        if self.sky is not None:
+            gaussians = with_sky(self.sky, *gaussians)
+        return project_gaussians(*gaussians, camera, backend=self.config.backend)
+
+    def _visible_raw_colors(self, projected, camera: Camera) -> Tensor:
+        """Raw colours [V, 3] of the visible rows: the scene's by their SH, the sky's own."""
+        index = projected.index
+        if self.sky is not None:
+            scene_visible = scene_rows(projected, self.num_gaussians)
+            index, sky_index = index[:scene_visible], index[scene_visible:] - self.num_gaussians
+        degree, backend = self.active_sh_degree, self.config.backend
+        raw = visible_colors(degree, self.sh_dc, self.sh_rest, self.means, index, camera.center, backend=backend)
+        if self.sky is not None:
+            raw = torch.cat([raw, self.sky.colors[sky_index]])
+        return raw
 
     @property
     def coarse_to_fine_pays(self) -> bool:
@@ -270,8 +306,11 @@ class GaussianBackbone(Backbone):
         run the densification strategy (keeps Adam state aligned)."""
         interval = max(1, round(self.config.sh_increase_every * self.max_steps / REFERENCE_STEPS))
         self.active_sh_degree = max(self.active_sh_degree, min(self.config.sh_degree, (step + 1) // interval))
+        projected = features.extras.get("projected")
+        if projected is not None and self.sky is not None:
+            projected = scene_projection(projected, self.num_gaussians)
         self.config.strategy.step_post_backward(
-            self, optimizer, self.strategy_state, step, self.max_steps, features.extras.get("projected"), self.budget
+            self, optimizer, self.strategy_state, step, self.max_steps, projected, self.budget
         )
 
     def load_gaussians(self, tensors: dict[str, Tensor]) -> None:
@@ -286,10 +325,12 @@ class GaussianBackbone(Backbone):
         """Write the Gaussians as a standard 3DGS PLY (`mono-hdr export` looks for this method).
 
         The PLY holds the Gaussians only; an environment map goes beside it as `<name>.environment.exr`
-        (lat-long raw values, see sky.environment_image)."""
+        (lat-long raw values, see sky.environment_image), sky Gaussians as `<name>.sky.ply`."""
         written = export_ply(self, path)
         if self.environment is not None:
             export_environment(self.environment, written.with_suffix(".environment.exr"))
+        if self.sky is not None:
+            export_sky(self.sky, written.with_suffix(".sky.ply"))
         return written
 
     def get_extra_state(self) -> dict:

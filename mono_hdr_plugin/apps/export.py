@@ -73,11 +73,12 @@ def converters_paths(ply: Path) -> tuple[Path, Path]:
 
 def export_splats(model: TrainedModel, path: Path) -> list[Path]:
     """The Gaussians as a 3DGS PLY, the method's converters beside it, and the backbone's environment map
-    (`<name>.environment.exr`) where it has one."""
+    (`<name>.environment.exr`) or sky Gaussians (`<name>.sky.ply`) where it has them."""
     backbone: Any = model.pipeline.backbone  # export_command chose this path because it has export_ply
     backbone.export_ply(path)
     environment = [path.with_suffix(".environment.exr")] if getattr(backbone, "environment", None) is not None else []
-    return [path, *save_converters(model, path), *environment]
+    sky = [path.with_suffix(".sky.ply")] if getattr(backbone, "sky", None) is not None else []
+    return [path, *save_converters(model, path), *environment, *sky]
 
 
 def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
