@@ -86,7 +86,7 @@ class Pipeline(nn.Module):
         if method_config.converter_lr is None:  # the backbone's default rate for the method's networks
             method_config = dataclasses.replace(method_config, converter_lr=backbone.converter_lr)
         if method_config.hdr_log_weight is None:
-            weight = UNBOUNDED_HDR_LOG_WEIGHT[backbone_class.loss_kind] if scene.unbounded else 0.0
+            weight = UNBOUNDED_HDR_LOG_WEIGHT if scene.unbounded else 0.0
             method_config = dataclasses.replace(method_config, hdr_log_weight=weight)
         return cls(backbone_name, backbone, build_method(method_config, backbone_class.loss_kind), exposures)
 

@@ -61,7 +61,7 @@ class TestCoverage:
             image = features.composite(features.colors)
             assert float(features.extras["alpha"].detach().min()) > 0.98
             torch.testing.assert_close(image, torch.full_like(image, 0.5), atol=0.01, rtol=0)
-            assert float(features.extras["render_depth"]().abs().max()) == 0.0, "the sky has no depth"
+            assert float(features.extras["render_depth"]().detach().abs().max()) == 0.0, "the sky has no depth"
 
     def test_scene_in_front_of_the_sky(self):
         scene = make_scene(points=200)
