@@ -279,14 +279,12 @@ class GaussianBackbone(Backbone):
 
     def _visible_raw_colors(self, projected, camera: Camera) -> Tensor:
         """Raw colours [V, 3] of the visible rows: the scene's by their SH, the sky's own."""
-        index = projected.index
-        if self.sky is not None:
-            scene_visible = scene_rows(projected, self.num_gaussians)
-            index, sky_index = index[:scene_visible], index[scene_visible:] - self.num_gaussians
+        scene_visible = projected.index.shape[0] if self.sky is None else scene_rows(projected, self.num_gaussians)
+        index = projected.index[:scene_visible]
         degree, backend = self.active_sh_degree, self.config.backend
         raw = visible_colors(degree, self.sh_dc, self.sh_rest, self.means, index, camera.center, backend=backend)
         if self.sky is not None:
-            raw = torch.cat([raw, self.sky.colors[sky_index]])
+            raw = torch.cat([raw, self.sky.colors[projected.index[scene_visible:] - self.num_gaussians]])
         return raw
 
     @property

@@ -90,7 +90,7 @@ def shell_directions(count: int, centre: Tensor, radius: float, cameras: list[Ca
     or when no camera sees the shell, the whole sphere of `count`."""
     if not cameras:
         return fibonacci_directions(count), count
-    total = count
+    total, kept = count, fibonacci_directions(count)
     for _ in range(4):  # the visible fraction of a denser sphere is the same: converges in 2-3 rounds
         directions = fibonacci_directions(total)
         kept = directions[seen_by_cameras(centre + radius * directions, cameras, MARGIN)]
@@ -104,6 +104,9 @@ def shell_directions(count: int, centre: Tensor, radius: float, cameras: list[Ca
 
 class SkyGaussians(nn.Module):
     """The shell: fixed means [S, 3] and isotropic scales [S] (buffers), learned raw colours [S, 3]."""
+
+    means: Tensor
+    scales: Tensor
 
     def __init__(self, scene: SceneInfo, count: int, scale: float):
         super().__init__()

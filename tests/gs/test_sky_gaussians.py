@@ -74,8 +74,9 @@ class TestCoverage:
         projected = features.extras["projected"]
         is_sky = projected.index >= backbone.num_gaussians
         assert is_sky.any() and (~is_sky).any()
-        assert float(projected.depths[is_sky].min()) > float(projected.depths[~is_sky].max())
-        depth = features.extras["render_depth"]()
+        depths = projected.depths.detach()
+        assert float(depths[is_sky].min()) > float(depths[~is_sky].max())
+        depth = features.extras["render_depth"]().detach()
         covered = depth[..., 0] > 0
         assert covered.any()
         assert float(depth.max()) < 10.0, "depth is the scene's, not the sky's"
