@@ -60,6 +60,19 @@ def export_environment(environment: EnvironmentMap, path: Path) -> Path:
     return path
 
 
+def seen_by_cameras(points: Tensor, cameras: list[Camera], margin: float = 0.0) -> Tensor:
+    """[N] bool: which points some camera sees in front of its near plane, inside its image widened
+    by `margin` times its size on every side."""
+    seen = torch.zeros(points.shape[0], dtype=torch.bool)
+    for camera in cameras:
+        pixels, depth = camera.project(points)
+        pad_x, pad_y = margin * camera.width, margin * camera.height
+        inside = (pixels[:, 0] >= -pad_x) & (pixels[:, 0] < camera.width + pad_x)
+        inside &= (pixels[:, 1] >= -pad_y) & (pixels[:, 1] < camera.height + pad_y)
+        seen |= inside & (depth > camera.near)
+    return seen
+
+
 def random_points_in_view(count: int, low: Tensor, high: Tensor, cameras: list[Camera]) -> Tensor:
     """`count` points uniform in the box [low, high] that some training camera sees (in its image,
     beyond its near plane): in an unbounded scene the box reaches behind the cameras, and points
@@ -69,13 +82,7 @@ def random_points_in_view(count: int, low: Tensor, high: Tensor, cameras: list[C
     while sum(k.shape[0] for k in kept) < count and drawn < 64 * count:
         candidates = low + torch.rand(4 * count, 3) * (high - low)
         drawn += candidates.shape[0]
-        seen = torch.zeros(candidates.shape[0], dtype=torch.bool)
-        for camera in cameras:
-            pixels, depth = camera.project(candidates)
-            inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < camera.width)
-            inside &= (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height)
-            seen |= inside & (depth > camera.near)
-        kept.append(candidates[seen])
+        kept.append(candidates[seen_by_cameras(candidates, cameras)])
     points = torch.cat(kept)[:count] if kept else torch.empty(0, 3)
     if points.shape[0] < count:  # nothing (or too little) in view: the plain box
         points = torch.cat([points, low + torch.rand(count - points.shape[0], 3) * (high - low)])

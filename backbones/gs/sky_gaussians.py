@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import ProjectedGaussians
 from backbones.gs.sh import SH_C0
+from backbones.gs.sky import seen_by_cameras
 from mono_hdr_plugin.core.backbone import SceneInfo
 from mono_hdr_plugin.core.cameras import Camera
 
@@ -69,19 +70,6 @@ def shell_radius(scene: SceneInfo, centre: Tensor) -> float:
 
 
 _CORNER_BITS = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
-
-
-def seen_by_cameras(points: Tensor, cameras: list[Camera], margin: float) -> Tensor:
-    """[N] bool: which points some camera sees in front of it, inside its image widened by
-    `margin` times its size on every side."""
-    seen = torch.zeros(points.shape[0], dtype=torch.bool)
-    for camera in cameras:
-        pixels, depth = camera.project(points)
-        pad_x, pad_y = margin * camera.width, margin * camera.height
-        inside = (pixels[:, 0] >= -pad_x) & (pixels[:, 0] <= camera.width + pad_x)
-        inside &= (pixels[:, 1] >= -pad_y) & (pixels[:, 1] <= camera.height + pad_y)
-        seen |= inside & (depth > camera.near)
-    return seen
 
 
 def shell_directions(count: int, centre: Tensor, radius: float, cameras: list[Camera]) -> tuple[Tensor, int]:

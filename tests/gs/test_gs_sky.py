@@ -11,7 +11,7 @@ from helpers import quiet_config
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.rasterizer import project_gaussians, rasterize, render_gaussians
-from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.backbone import LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.cameras import look_at
 from mono_hdr_plugin.core.environment import EnvironmentMap
 from mono_hdr_plugin.core.validation import FlagError, check_flags
@@ -157,6 +157,17 @@ class TestFarPoint:
         assert abs(found_x + 0.5 - float(x)) <= 1.0 and abs(found_y + 0.5 - float(y)) <= 1.0
 
 
+def descend(backbone: GaussianBackbone, camera, target: torch.Tensor, optimizer) -> LdrFeatures:
+    """One optimiser step on the L1 error of the composited render against `target`; the features
+    that after_step reads."""
+    features = backbone.render_ldr_features(camera)
+    loss = (features.composite(features.colors) - target).abs().mean()
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    return features
+
+
 def adam_state(optimizer, parameters) -> list[dict]:
     return [{k: v.clone() for k, v in optimizer.state[p].items()} for p in parameters]
 
@@ -183,11 +194,7 @@ class TestDensityControlLeavesTheSkyAlone:
         target = torch.rand(camera.height, camera.width, 3, generator=torch.Generator().manual_seed(2))
         counts = []
         for step in range(1, 4):
-            features = backbone.render_ldr_features(camera)
-            loss = (features.composite(features.colors) - target).abs().mean()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
+            features = descend(backbone, camera, target, optimizer)
             textures = list(backbone.environment.parameters())
             values, moments = [t.detach().clone() for t in textures], adam_state(optimizer, textures)
             before = backbone.num_gaussians

@@ -6,11 +6,12 @@ import pytest
 import torch
 from gs_outdoor import outdoor_capture
 from helpers import quiet_config
-from test_gs_sky import adam_state, make_scene
+from test_gs_sky import adam_state, descend, make_scene
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.ply import load_ply
-from backbones.gs.sky_gaussians import fibonacci_directions, scene_projection, seen_by_cameras
+from backbones.gs.sky import seen_by_cameras
+from backbones.gs.sky_gaussians import fibonacci_directions, scene_projection
 from mono_hdr_plugin.core.validation import FlagError, check_flags
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -102,11 +103,7 @@ class TestDensityControlLeavesTheSkyAlone:
         means, scales = backbone.sky.means.clone(), backbone.sky.scales.clone()
         counts = []
         for step in range(1, 5):
-            features = backbone.render_ldr_features(camera)
-            loss = (features.composite(features.colors) - target).abs().mean()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
+            features = descend(backbone, camera, target, optimizer)
             colors, moments = backbone.sky.colors.detach().clone(), adam_state(optimizer, [backbone.sky.colors])
             before = backbone.num_gaussians
             backbone.after_step(step, features, optimizer)
