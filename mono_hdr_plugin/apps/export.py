@@ -28,7 +28,7 @@ from mono_hdr_plugin.training.trained import TrainedModel, load_trained_model
 
 console = Console(stderr=True)
 CONVERTERS_FORMAT = "mono-hdr-3d converters"
-CONVERTERS_VERSION = 1
+CONVERTERS_VERSION = 2  # 2: L2H-CC's weights signed per hidden unit (a non-decreasing converter)
 POINT_CLOUD_HDR = ("hdr_red", "hdr_green", "hdr_blue")
 
 

@@ -36,7 +36,13 @@ class PerChannelLinear(nn.Module):
 
 
 def per_channel_relu_mlp(x: Tensor, first: PerChannelLinear, second: PerChannelLinear) -> Tensor:
-    """second(relu(first(x))) for one scalar per channel: x [C, N] -> [C, N, K].
+    """second(relu(first(x))) for one scalar per channel: x [C, N] -> [C, N, K]."""
+    return relu_mlp_by_intervals(x, first.weight, first.bias, second.weight, second.bias)
+
+
+def relu_mlp_by_intervals(x: Tensor, weight1: Tensor, bias1: Tensor, weight2: Tensor, bias2: Tensor) -> Tensor:
+    """relu(x w1 + b1) w2 + b2 per channel, x [C, N] -> [C, N, K], from PerChannelLinear-shaped weights
+    (w1, b1 [C, 1, H]; w2 [C, H, K]; b2 [C, 1, K]).
 
     Between consecutive kinks t_j = -b_j / w_j of the hidden units the active set is fixed, so
     the output is slope * x + intercept there. Positive-slope units are active above their kink,
@@ -44,8 +50,8 @@ def per_channel_relu_mlp(x: Tensor, first: PerChannelLinear, second: PerChannelL
     intercept (computed in float64), and each input looks its interval up. Equal to the matrix
     form up to rounding, at O(N + hidden) cost instead of O(N * hidden).
     """
-    w1, b1 = first.weight[:, 0, :].double(), first.bias[:, 0, :].double()  # [C, H]
-    w2, b2 = second.weight.double(), second.bias.double()  # [C, H, K], [C, 1, K]
+    w1, b1 = weight1[:, 0, :].double(), bias1[:, 0, :].double()  # [C, H]
+    w2, b2 = weight2.double(), bias2.double()  # [C, H, K], [C, 1, K]
     moving = w1 != 0
     # a unit with w = 0 never switches: "rising" from -inf when on (b > 0), from +inf when off
     kinks = torch.where(moving, -b1 / torch.where(moving, w1, 1.0), torch.where(b1 > 0, -torch.inf, torch.inf))
@@ -85,7 +91,7 @@ def channels_last(values: Tensor, shape: torch.Size) -> Tensor:
 
 
 class L2HColorConverter(nn.Module):
-    """L2H-CC: LDR colour [..., 3] in [0, 1] -> HDR colour [..., 3] >= 0, per channel.
+    """L2H-CC: LDR colour [..., 3] in [0, 1] -> HDR colour [..., 3] >= 0, per channel, non-decreasing.
 
     It also takes a monotone coordinate of the LDR colour in place of it, as the NeRF grid field's
     logits (LdrFeatures.l2h_inputs): the same information, better conditioned near 1.
@@ -93,16 +99,35 @@ class L2HColorConverter(nn.Module):
     latent = ReLU(W x); X = ReLU(.), S = ReLU(.), Y = linear; out = Softplus(x + X * S + Y).
     The three heads share one [hidden -> 3] product (columns X, S, Y), the same maths as
     three Linear(hidden -> 1) layers at a third of the memory traffic.
+
+    L2H-CC stands in for the inverse of a camera response, which rises; the paper's network can
+    fall, and then a brighter photo maps to a darker radiance (docs/method.md, "A monotone L2H-CC").
+    So each hidden unit has a fixed direction: the first half rise with the input (latent weight
+    |w|), the second half fall (-|w|), and the unit's three head weights carry its direction's sign
+    (+|a| or -|a|). Every unit then adds a non-decreasing function to X, S and Y; ReLU(X) * ReLU(S)
+    is a product of non-negative non-decreasing functions, and x, the sum and Softplus rise: the
+    output never falls as the input rises, whatever the weights, while rising and falling units
+    together still draw any non-decreasing piecewise-linear X, S and Y.
     """
+
+    direction: Tensor
 
     def __init__(self, hidden: int = 128):
         super().__init__()
         self.latent = PerChannelLinear(1, hidden)
         self.heads = PerChannelLinear(hidden, 3)
+        direction = torch.where(torch.arange(hidden) < (hidden + 1) // 2, 1.0, -1.0)
+        self.register_buffer("direction", direction, persistent=False)  # a function of `hidden` alone
+
+    def monotone_weights(self) -> tuple[Tensor, Tensor]:
+        """The latent [C, 1, H] and head [C, H, 3] weights the converter applies (signed by unit direction)."""
+        return self.direction * self.latent.weight.abs(), self.direction[:, None] * self.heads.weight.abs()
 
     def forward(self, ldr: Tensor) -> Tensor:
         x = channels_first(ldr).squeeze(-1)
-        gain, saturation, noise = per_channel_relu_mlp(x, self.latent, self.heads).unbind(-1)
+        latent_weight, head_weight = self.monotone_weights()
+        heads = relu_mlp_by_intervals(x, latent_weight, self.latent.bias, head_weight, self.heads.bias)
+        gain, saturation, noise = heads.unbind(-1)
         hdr = F.softplus(x + F.relu(gain) * F.relu(saturation) + noise)
         return channels_last(hdr, ldr.shape)
 
@@ -130,7 +155,8 @@ class H2LColorConverter(nn.Module):
 
 
 class PlainL2H(nn.Module):
-    """Ablation: a plain per-channel MLP (1 -> hidden -> 1, Softplus out), no imaging structure."""
+    """Ablation: a plain per-channel MLP (1 -> hidden -> 1, Softplus out), no imaging structure and,
+    as in the paper, no monotonicity: it may map a brighter colour to a darker radiance."""
 
     def __init__(self, hidden: int = 128):
         super().__init__()

@@ -18,10 +18,11 @@ class MonoHDR(HdrMethod):
     h2l_class: type[nn.Module] | None = H2LColorConverter
     hdr_recipe = (
         "colour c = the Gaussian's LDR colour (3DGS: max(SH(view direction) + 0.5, 0)); hdr = L2H-CC(c) per "
-        "channel i: h = relu(l2h.latent.weight[i] * c_i + l2h.latent.bias[i]); (X, S, Y) = h @ "
-        "l2h.heads.weight[i] + l2h.heads.bias[i]; hdr_i = softplus(c_i + relu(X) * relu(S) + Y). Composite hdr "
-        "with the same alpha weights as the LDR colour. ldr_from_hdr = H2L-CC(mu_law(hdr_image / max)) closes the "
-        "loop in training only."
+        "channel i, with each hidden unit j's weights signed by its direction d_j (+1 for j < ceil(hidden / 2), "
+        "else -1): w_j = d_j * |l2h.latent.weight[i, 0, j]|, a_j = d_j * |l2h.heads.weight[i, j]|; h = relu(w * c_i "
+        "+ l2h.latent.bias[i]); (X, S, Y) = h @ a + l2h.heads.bias[i]; hdr_i = softplus(c_i + relu(X) * relu(S) + "
+        "Y), non-decreasing in c_i. Composite hdr with the same alpha weights as the LDR colour. ldr_from_hdr = "
+        "H2L-CC(mu_law(hdr_image / max)) closes the loop in training only."
     )
 
     def __init__(self, config: MethodConfig, loss_kind: LossKind):

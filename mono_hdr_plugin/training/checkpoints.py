@@ -13,11 +13,13 @@ from mono_hdr_plugin.data.io import atomic_path
 CHECKPOINT_FORMAT = "mono-hdr-3d checkpoint"
 ZIP_MAGIC = b"PK\x03\x04"
 """torch.save writes a zip archive; anything else is not a checkpoint of ours."""
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3
 # Why each older version cannot be read, so the refusal names what went wrong.
 RETIRED_VERSIONS = {
     1: "version 1 did not save state outside the parameters (3DGS's active SH degree): its 3DGS "
     "models would load and render without view-dependent colour",
+    2: "version 2's L2H-CC had unconstrained weights; version 3 reads them as a non-decreasing converter "
+    "(docs/method.md, 'A monotone L2H-CC'), so a version 2 model would render another HDR",
 }
 
 

@@ -1,4 +1,5 @@
 import copy
+import math
 
 import pytest
 import torch
@@ -16,12 +17,16 @@ from mono_hdr_plugin.core.converters import (
 
 
 def reference_l2h(converter: L2HColorConverter, ldr: torch.Tensor) -> torch.Tensor:
-    """The official per-channel loop: three separate 1 -> hidden -> (X, S, Y) networks."""
+    """The official per-channel loop (three separate 1 -> hidden -> (X, S, Y) networks) on the weights
+    the recipe in MonoHDR.hdr_recipe describes: unit j rises (+|w|, +|a|) for j < ceil(hidden / 2),
+    else falls (-|w|, -|a|)."""
+    hidden = converter.latent.weight.shape[-1]
+    sign = torch.tensor([1.0 if j < math.ceil(hidden / 2) else -1.0 for j in range(hidden)], dtype=ldr.dtype)
     outputs = []
     for c in range(3):
         x = ldr[..., c : c + 1]
-        latent = F.relu(x @ converter.latent.weight[c] + converter.latent.bias[c])
-        heads = latent @ converter.heads.weight[c] + converter.heads.bias[c]
+        latent = F.relu(x @ (sign * converter.latent.weight[c].abs()) + converter.latent.bias[c])
+        heads = latent @ (sign[:, None] * converter.heads.weight[c].abs()) + converter.heads.bias[c]
         gain, saturation, noise = F.relu(heads[..., 0:1]), F.relu(heads[..., 1:2]), heads[..., 2:3]
         outputs.append(F.softplus(x + gain * saturation + noise))
     return torch.cat(outputs, -1)
@@ -133,6 +138,63 @@ class TestL2HColorConverter:
         converter = L2HColorConverter(hidden=6).double()
         ldr = torch.rand(4, 3, dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(converter, (ldr,))
+
+    def test_weights_get_gradients(self):
+        converter = L2HColorConverter(hidden=8)
+        converter(torch.rand(20, 3)).sum().backward()
+        for parameter in converter.parameters():
+            assert parameter.grad is not None and parameter.grad.abs().sum() > 0
+
+
+def largest_fall(converter, inputs: torch.Tensor) -> float:
+    """The largest drop of the converter's output between consecutive sorted inputs [N] (all channels)."""
+    with torch.no_grad():
+        out = converter(inputs[:, None].expand(-1, 3).contiguous())
+    return float((out[:-1] - out[1:]).clamp_min(0).max())
+
+
+class TestL2HMonotone:
+    """L2H-CC stands in for an inverse camera response: never a darker HDR for a brighter colour."""
+
+    INPUTS = torch.linspace(0.0, 1.0, 2001)
+    LOGITS = torch.linspace(-12.0, 12.0, 2001)  # the NeRF grid field's monotone coordinate
+
+    @pytest.mark.parametrize("seed", range(6))
+    def test_non_decreasing_for_any_weights(self, seed):
+        torch.manual_seed(seed)
+        converter = L2HColorConverter(hidden=32)
+        with torch.no_grad():  # weights far from their initialisation, of both signs, as training leaves them
+            for parameter in converter.parameters():
+                parameter.copy_(torch.randn_like(parameter) * 3.0)
+        assert largest_fall(converter, self.INPUTS) == 0.0
+        assert largest_fall(converter, self.LOGITS) == 0.0
+
+    def test_the_plain_ablation_is_not(self):
+        # the same check finds falls in the paper's plain MLP: it is the check, not luck, that passes above
+        falls = []
+        for seed in range(6):
+            torch.manual_seed(seed)
+            plain = PlainL2H(hidden=32)
+            with torch.no_grad():
+                for parameter in plain.parameters():
+                    parameter.copy_(torch.randn_like(parameter) * 3.0)
+            falls.append(largest_fall(plain, self.INPUTS))
+        assert max(falls) > 1e-3
+
+    def test_can_fit_a_concave_rise(self):
+        # rising and falling units together draw a concave curve (sqrt), which rising units alone cannot
+        torch.manual_seed(0)
+        converter = L2HColorConverter(hidden=16)
+        x = torch.linspace(0.0, 1.0, 64)[:, None].expand(-1, 3).contiguous()
+        target = 3.0 * x.sqrt() + 0.05
+        optimiser = torch.optim.Adam(converter.parameters(), lr=0.02)
+        for _ in range(600):
+            optimiser.zero_grad()
+            loss = ((converter(x) - target) ** 2).mean()
+            loss.backward()
+            optimiser.step()
+        # a convex (rising units only) fit is at best affine here: mean squared error about 0.02
+        assert loss.item() < 5e-3
 
 
 class TestH2LColorConverter:

@@ -36,7 +36,7 @@ STANDARD_3DGS = (
 # sha256 of the HDR recipe each method's export has written since the recipes were written (the text
 # now lives in the method: MonoHDR.hdr_recipe, CrfBaseline.hdr_recipe).
 RECIPE_SHA256 = {
-    "mono": "df62fc5e88797c1128601329d77cfb8e9025b20649dc8eb6c50fd48b9ce5211c",
+    "mono": "3229a2004e9d46d25c15bdf8e92f16fccefbd765cecd91f6f12936bd0b4210bf",
     "hdr-gs": "bcf7749a32dbb1774664068586e636b6f2c6a27cf1a12721771de97596385eed",
 }
 
@@ -102,7 +102,7 @@ class TestSplatExport:
         export_splats(gaussians, path)
         _, description = converters_paths(path)
         description.write_text(json.dumps({"format": "something else", "version": 1}))
-        with pytest.raises(ValueError, match="is not a version 1"):
+        with pytest.raises(ValueError, match="is not a version 2"):
             load_converters(path)
 
 
