@@ -236,7 +236,7 @@ def print_plugins(registry, title: str, columns: tuple[str, ...], describe: Call
 
 def print_metrics(metrics: dict, path: Path) -> None:
     from mono_hdr_plugin.core.calibration import RadianceCalibration
-    from mono_hdr_plugin.training.evaluation import HDR_KEYS
+    from mono_hdr_plugin.training.evaluation import HDR_KEYS, RADIANCE_KEYS
 
     table = Table(
         title=Text(
@@ -249,12 +249,20 @@ def print_metrics(metrics: dict, path: Path) -> None:
     for key in (*HDR_KEYS, "ldr_psnr", "ldr_ssim"):
         value = metrics.get(key)
         table.add_row(key, "n/a (no HDR ground truth)" if value is None else f"{value:.4f}")
+    for key in RADIANCE_KEYS:
+        value = metrics.get(key)
+        table.add_row(key, "n/a (too few well-exposed pixels)" if value is None else f"{value:.4f}")
     if "radiance_scale" in metrics:
         calibration = RadianceCalibration(metrics["radiance_scale"], metrics["radiance_units"])
         table.add_row("HDR calibration", Text(calibration.describe()))
+    if "hdr_basis" in metrics:
+        table.add_row("HDR rests on", Text(metrics["hdr_basis"]))
     for exposure, value in metrics["ldr_psnr_per_exposure"].items():
         table.add_row(f"ldr_psnr @ {exposure} s", f"{value:.4f}")
     console.print(table)
+    for warning in metrics.get("hdr_warnings", []):
+        note = f" {warning} (docs/method.md, 'HDR without HDR views')"
+        errors.print(Text.assemble(("warning:", "bold yellow"), note))
     console.print(Text(f"metrics written to {path}"), soft_wrap=True)
 
 

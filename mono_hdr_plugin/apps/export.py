@@ -102,6 +102,7 @@ def save_converters(model: TrainedModel, ply: Path) -> tuple[Path, Path]:
         or f"the registered method {method.config.method!r}: apply its forward to "
         "the Gaussians' colours (see its documentation)",
         "radiance_calibration": model.pipeline.calibration.state(),
+        "hdr_basis": model.pipeline.calibration.basis,
         "radiance": "calibrated HDR = radiance_calibration.scale * the recipe's hdr, in units of "
         + UNIT_TEXT[model.pipeline.calibration.units],
         "reference_exposure_seconds": model.exposure.reference_exposure,

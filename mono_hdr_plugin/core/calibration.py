@@ -42,12 +42,14 @@ UNIT_TEXT = {
 @dataclass(frozen=True)
 class RadianceCalibration:
     """calibrated HDR = scale x the method's HDR, in `units`; fitted on `samples` pixel values at
-    training step `step`."""
+    training step `step`. `basis`: what ties the HDR to radiance in training ("12 HDR ground-truth
+    views", "the sRGB response (no HDR views)", ...; training.hdr_prior.hdr_basis)."""
 
     scale: float = 1.0
     units: Units = "uncalibrated"
     samples: int = 0
     step: int | None = None
+    basis: str = "unknown"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.scale) and self.scale > 0):
@@ -73,8 +75,14 @@ class RadianceCalibration:
 
 def well_exposed(photo: Tensor) -> Tensor:
     """[...] True where every channel of the photo's code values [..., 3] lies inside WELL_EXPOSED."""
+    return well_exposed_channels(photo).all(-1)
+
+
+def well_exposed_channels(photo: Tensor) -> Tensor:
+    """[..., 3] True where the photo's code value lies inside WELL_EXPOSED, channel by channel: a pixel
+    whose red clips still records its green and blue."""
     low, high = WELL_EXPOSED
-    return ((photo > low) & (photo < high)).all(-1)
+    return (photo > low) & (photo < high)
 
 
 def median_log_ratio(target: Tensor, prediction: Tensor) -> tuple[float, int]:

@@ -31,8 +31,20 @@ def photometric_loss(pred: Tensor, target: Tensor, kind: LossKind, dssim_weight:
 
 
 LOG_FLOOR = 1e-4
-"""scale_invariant_log_loss adds this fraction of the target's mean to both images before the log: a
+"""log_ratio adds this fraction of the target's mean to both images before the log: a
 dead channel (0) costs a large but finite error with a bounded gradient."""
+
+
+def log_ratio(pred: Tensor, target: Tensor) -> Tensor:
+    """log pred - log target, each with LOG_FLOOR x the target's mean added: finite on dead channels."""
+    floor = LOG_FLOOR * target.mean().detach()
+    return torch.log(pred + floor) - torch.log(target + floor)
+
+
+def log_ratio_loss(pred: Tensor, target: Tensor) -> Tensor:
+    """mean |log pred - log target| over the entries of two radiances: a relative error that also fixes
+    the level (the HDR prior, methods.base: the target is the photo's own radiance)."""
+    return log_ratio(pred, target).abs().mean()
 
 
 def scale_invariant_log_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -43,8 +55,7 @@ def scale_invariant_log_loss(pred: Tensor, target: Tensor) -> Tensor:
     pixel off by the same factor, where mu-law over the maximum barely sees it. The minimising c is
     d's median (the midpoint of the two middle values); it is held constant in the gradient, which is
     then the gradient of the minimum."""
-    floor = LOG_FLOOR * target.mean().detach()
-    difference = torch.log(pred + floor) - torch.log(target + floor)
+    difference = log_ratio(pred, target)
     flat = difference.detach().flatten()
     middle = 0.5 * (flat.kthvalue((flat.numel() + 1) // 2).values + flat.kthvalue(flat.numel() // 2 + 1).values)
     return (difference - middle).abs().mean()

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mono_hdr_plugin.core.calibration import median_log_ratio, well_exposed
+from mono_hdr_plugin.core.calibration import median_log_ratio, well_exposed, well_exposed_channels
 
 MU = 5000.0
 EMITTER_FRACTION = 0.001
@@ -193,6 +193,75 @@ def chroma_outliers(pred_hdr: Tensor, gt_hdr: Tensor, photo: Tensor) -> float:
     gt_chroma = gt_hdr[counted] / gt_hdr[counted].sum(-1, keepdim=True)
     pred_chroma = pred_hdr[counted] / pred_hdr[counted].sum(-1, keepdim=True).clamp_min(1e-12)
     return float(((pred_chroma - gt_chroma).abs().amax(-1) > CHROMA_BOUND).double().mean())
+
+
+CHANNELS = ("r", "g", "b")
+MIN_CONSISTENCY_SAMPLES = 64
+"""Fewer well-exposed values of a channel than this: its consistency scores are NaN."""
+RANK_CORRELATION_FLOOR = 0.98
+LOG_SLOPE_RANGE = (0.9, 1.1)
+"""Radiance-consistency bounds below / outside which a run warns that its HDR is not radiance."""
+
+
+def radiance_consistency(pred_hdr: Tensor, linear_photo: Tensor, photo: Tensor) -> dict[str, float]:
+    """Scores of an HDR render [..., 3] that need no HDR ground truth, per channel, over the values the
+    photo [..., 3] exposes well (core.calibration.WELL_EXPOSED, channel by channel):
+
+    hdr_rank_correlation_<c>: Spearman's rank correlation (ties ranked by their mean) of the HDR with
+        the linearised photo `linear_photo` (f^-1(photo)): 1 when the HDR rises wherever the photo does;
+    hdr_log_slope_<c>: the least-squares slope of log HDR against log linearised photo: 1 when the HDR
+        is proportional to the radiance the photo records, 0.5 when it is its square root.
+    NaN where a channel has fewer than MIN_CONSISTENCY_SAMPLES usable values."""
+    from scipy.stats import spearmanr
+
+    usable = well_exposed_channels(photo) & (pred_hdr > 0) & (linear_photo > 0)
+    scores: dict[str, float] = {}
+    for channel, name in enumerate(CHANNELS):
+        keep = usable[..., channel]
+        hdr = pred_hdr[..., channel][keep].double()
+        linear = linear_photo[..., channel][keep].double()
+        if hdr.numel() < MIN_CONSISTENCY_SAMPLES or float(linear.std()) == 0.0:
+            scores[f"hdr_rank_correlation_{name}"] = scores[f"hdr_log_slope_{name}"] = math.nan
+            continue
+        # a constant HDR does not follow the photo at all: 0 (spearmanr would warn and return NaN)
+        rank = spearmanr(hdr.numpy(), linear.numpy()).statistic if float(hdr.std()) > 0.0 else 0.0
+        scores[f"hdr_rank_correlation_{name}"] = float(rank)
+        x, y = torch.log(linear), torch.log(hdr)
+        x, y = x - x.mean(), y - y.mean()
+        scores[f"hdr_log_slope_{name}"] = float((x * y).sum() / (x * x).sum())
+    return scores
+
+
+def radiance_warnings(scores: dict[str, float | None]) -> list[str]:
+    """What `radiance_consistency`'s (averaged) scores say is wrong, one line per channel off."""
+    warnings = []
+    low, high = LOG_SLOPE_RANGE
+    for name in CHANNELS:
+        rank, slope = scores.get(f"hdr_rank_correlation_{name}"), scores.get(f"hdr_log_slope_{name}")
+        if rank is not None and math.isfinite(rank) and rank < RANK_CORRELATION_FLOOR:
+            warnings.append(
+                f"the HDR's {name} channel follows the photo with rank correlation {rank:.3f} (below "
+                f"{RANK_CORRELATION_FLOOR}): where the photo brightens, this HDR does not always"
+            )
+        if slope is not None and math.isfinite(slope) and not low <= slope <= high:
+            warnings.append(
+                f"the HDR's {name} channel grows as the linearised photo to the power {slope:.3f} (radiance: "
+                f"1, accepted {low}-{high})"
+            )
+    return warnings
+
+
+def clipped_split_metrics(pred_hdr: Tensor, gt_hdr: Tensor, photo: Tensor) -> dict[str, float]:
+    """GT-max mu-law PSNR apart on the pixels the photo clips (any channel at 1: there the HDR is
+    extrapolated) and on the rest; the clipped pixels' share. NaN for an empty part."""
+    clipped = (photo >= 1.0).any(-1)
+    gt_max = gt_hdr.max()
+    pred, gt = normalise_hdr(pred_hdr, gt_max), normalise_hdr(gt_hdr, gt_max)
+    return {
+        "hdr_psnr_clipped": psnr(pred[clipped], gt[clipped]) if clipped.any() else math.nan,
+        "hdr_psnr_unclipped": psnr(pred[~clipped], gt[~clipped]) if (~clipped).any() else math.nan,
+        "clipped_fraction": float(clipped.double().mean()),
+    }
 
 
 class LpipsUnavailable(RuntimeError):

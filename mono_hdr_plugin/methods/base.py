@@ -14,9 +14,9 @@ import tyro
 from torch import Tensor, nn
 
 from mono_hdr_plugin.core.backbone import OFFICIAL_CONVERTER_LR, LdrFeatures
-from mono_hdr_plugin.core.calibration import well_exposed
+from mono_hdr_plugin.core.calibration import well_exposed, well_exposed_channels
 from mono_hdr_plugin.core.configs import SAVED_IN_PARENT
-from mono_hdr_plugin.core.losses import LossKind, photometric_loss, scale_invariant_log_loss
+from mono_hdr_plugin.core.losses import LossKind, log_ratio_loss, photometric_loss, scale_invariant_log_loss
 from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
 from mono_hdr_plugin.core.validation import FRACTION, NON_NEGATIVE, POSITIVE, at_least, iter_flags
@@ -26,6 +26,8 @@ DEFAULT_BETA = {"l1_dssim": 0.05, "mse": 0.01}
 # Weight of L_log on an unbounded scene, both backbones, chosen by runs at 0 / 0.01 / 0.03 on the
 # outdoor scenes (docs/outdoor.md, "The colour under a bright sky"); interiors train without it.
 UNBOUNDED_HDR_LOG_WEIGHT = 0.01
+# Weight of L_prior when no training view has HDR ground truth (docs/method.md, "HDR without HDR views").
+HDR_PRIOR_WEIGHT = 0.1
 
 
 @dataclass
@@ -62,6 +64,12 @@ class MethodConfig:
     pixels costs as much as one near them (on a 1e6 : 1 sky L_hdr's mu-law over the maximum puts every
     pixel but the sun's below 0.02). Default: 0.01 on an unbounded scene, else 0
     (off, the paper's recipe)."""
+    hdr_prior_weight: float | None = None
+    """Weight of L_prior: mean |log HDR render - log(f^-1(photo) / t)| over the channels the photo exposes
+    well, f the camera response (process-data's fitted one, else sRGB) and t the view's exposure relative
+    to the reference view: where no HDR view exists, the HDR is tied to the radiance the photo records
+    (docs/method.md, "HDR without HDR views"). Applied to views trained without HDR ground truth. Default:
+    0.1 when no training view has HDR ground truth, else 0 (the paper's recipe)."""
     beta: float | None = None
     """Weight of L_h2l; default 0.05 with the 3DGS loss, 0.01 with the NeRF loss."""
     loss: Literal["auto", "l1_dssim", "mse"] = "auto"
@@ -79,6 +87,7 @@ class MethodConfig:
         "alpha": NON_NEGATIVE,
         "hdr_scale_anchor": NON_NEGATIVE,
         "hdr_log_weight": NON_NEGATIVE,
+        "hdr_prior_weight": NON_NEGATIVE,
         "beta": NON_NEGATIVE,
         "dssim_weight": FRACTION,
         "converter_lr": POSITIVE,
@@ -106,6 +115,9 @@ class Targets:
     ldr: Tensor
     exposure: float
     hdr: Tensor | None = None
+    radiance: Tensor | None = None
+    """The photo's radiance where it is well exposed, f^-1(ldr) / (t / t_ref): L_prior's target on a view
+    trained without HDR ground truth (None: no prior)."""
 
 
 def saturate_like(pred: Tensor, photo: Tensor) -> Tensor:
@@ -184,6 +196,12 @@ class HdrMethod(nn.Module):
             if exposed.any():
                 relative = scale_invariant_log_loss(output.hdr[exposed], targets.hdr[exposed])
                 terms["hdr_log"] = config.hdr_log_weight * relative
+        if config.hdr_prior_weight and targets.radiance is not None:
+            exposed = well_exposed_channels(targets.ldr)
+            if exposed.any():
+                terms["hdr_prior"] = config.hdr_prior_weight * log_ratio_loss(
+                    output.hdr[exposed], targets.radiance[exposed]
+                )
         return terms
 
     def parameter_groups(self) -> list[dict]:

@@ -1,18 +1,22 @@
 """Fitting a trained model's radiance scale on its training views (the estimator: core.calibration).
 
+It reads HDR ground truth only of the views training read it of (--hdr-view-ratio): a run trained
+without HDR views is calibrated in the units its photos' exposures define, never in those of ground
+truth it was not given (only evaluation may read that).
+
 The trainer refits it before every evaluation and checkpoint, so a saved model's HDR is always in
 the capture's units; `load_trained_model` fits one for a checkpoint written before it existed.
 """
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 from torch import Tensor
 
 from mono_hdr_plugin.core.calibration import RadianceCalibration, Units, fit_scale
-from mono_hdr_plugin.core.exposure import decode, srgb_response
+from mono_hdr_plugin.core.exposure import decode
 from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.training.hdr_prior import camera_response, ground_truth_views, hdr_basis
 from mono_hdr_plugin.training.pipeline import Pipeline
 
 CALIBRATION_VIEWS = 8
@@ -34,30 +38,37 @@ class TrainingSamples:
 
 
 @torch.no_grad()
-def training_samples(pipeline: Pipeline, scene: SceneData) -> list[TrainingSamples]:
+def training_samples(
+    pipeline: Pipeline, scene: SceneData, hdr_views: list[bool] | None = None
+) -> list[TrainingSamples]:
     """Rendered pixels of up to CALIBRATION_VIEWS training views, the same pixels at every call
-    (so a refit moves with the model only)."""
+    (so a refit moves with the model only); the HDR ground truth of those `hdr_views` picks (None: all)."""
     generator = torch.Generator().manual_seed(0)
+    readable = ground_truth_views(scene, hdr_views)
     samples = []
     with pipeline.evaluating():
         for index in calibration_views(scene):
             view = scene.train[index]
             hdr, rows, cols = _render_pixels(pipeline, view, generator)
-            truth = None if view.hdr is None else view.hdr[rows, cols]
+            truth = view.hdr[rows, cols] if readable[index] and view.hdr is not None else None
             samples.append(TrainingSamples(hdr, view.image[rows, cols], truth, _exposure(pipeline, scene, index)))
     return samples
 
 
-def fit_radiance_calibration(pipeline: Pipeline, scene: SceneData, step: int | None = None) -> RadianceCalibration:
-    """The radiance calibration of `pipeline` trained on `scene`: in the units of the training views'
-    HDR ground truth where they have some, else in those their exposure times define."""
-    samples = training_samples(pipeline, scene)
+def fit_radiance_calibration(
+    pipeline: Pipeline, scene: SceneData, step: int | None = None, hdr_views: list[bool] | None = None
+) -> RadianceCalibration:
+    """The radiance calibration of `pipeline` trained on `scene`: in the units of the HDR ground truth of
+    the training views `hdr_views` picks (None: all) where they have some, else in those their
+    exposure times define."""
+    samples = training_samples(pipeline, scene, hdr_views)
+    basis = hdr_basis(scene, hdr_views, pipeline.exposures)
     with_truth = [sample for sample in samples if sample.truth is not None]
     units: Units
     if with_truth:
         units, targets = "ground_truth", [sample.truth for sample in with_truth if sample.truth is not None]
     else:
-        units, response = _exposure_units(scene), _response(pipeline, scene)
+        units, response = _exposure_units(scene), camera_response(scene, pipeline.exposures)
         targets = [decode(sample.photo, response) / sample.exposure for sample in samples]
     used = with_truth or samples
     scale, count = fit_scale(
@@ -66,8 +77,8 @@ def fit_radiance_calibration(pipeline: Pipeline, scene: SceneData, step: int | N
         torch.cat([sample.photo for sample in used]),
     )
     if count == 0:
-        return RadianceCalibration(step=step)
-    return RadianceCalibration(scale=scale, units=units, samples=count, step=step)
+        return RadianceCalibration(step=step, basis=basis)
+    return RadianceCalibration(scale=scale, units=units, samples=count, step=step, basis=basis)
 
 
 def calibration_views(scene: SceneData) -> list[int]:
@@ -94,15 +105,6 @@ def _render_pixels(pipeline: Pipeline, view: View, generator: torch.Generator) -
 
 def _exposure_units(scene: SceneData) -> Units:
     return "reference_exposure" if scene.metadata.get("unknown_exposures") else "exposure_seconds"
-
-
-def _response(pipeline: Pipeline, scene: SceneData) -> Tensor:
-    """The camera response table [256, 3] training used: the per-view exposure model's, else the
-    capture's (process-data's camera_response.json), else sRGB."""
-    if pipeline.exposures is not None:
-        return pipeline.exposures.response
-    response = scene.metadata.get("camera_response")
-    return torch.as_tensor(np.asarray(response) if response is not None else srgb_response(), dtype=torch.float32)
 
 
 def _exposure(pipeline: Pipeline, scene: SceneData, index: int) -> float:

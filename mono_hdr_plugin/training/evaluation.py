@@ -6,21 +6,27 @@ from typing import Any
 
 import torch
 
+from mono_hdr_plugin.core.exposure import decode
 from mono_hdr_plugin.core.metrics import (
+    CHANNELS,
     LpipsUnavailable,
     chroma_outliers,
+    clipped_split_metrics,
     hdr_metrics,
     hdr_scale_metrics,
     load_lpips,
     lpips_distance,
     normalise_hdr,
     psnr,
+    radiance_consistency,
+    radiance_warnings,
     source_metrics,
     ssim,
     tone_mapped_pair,
 )
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.training.hdr_prior import camera_response
 from mono_hdr_plugin.training.pipeline import Frame, Pipeline
 
 
@@ -59,7 +65,12 @@ HDR_KEYS = (
     "hdr_peak_ratio",
     "ldr_peak_ratio",
     "chroma_outliers",
+    "hdr_psnr_clipped",
+    "hdr_psnr_unclipped",
+    "clipped_fraction",
 )
+RADIANCE_KEYS = tuple(f"hdr_{score}_{c}" for score in ("rank_correlation", "log_slope") for c in CHANNELS)
+"""Scores of the HDR against the test photos themselves (core.metrics.radiance_consistency): every run has them."""
 
 
 @torch.no_grad()
@@ -79,25 +90,38 @@ def evaluate(
         lpips_model, lpips_skipped = load_lpips(), None
     except LpipsUnavailable as reason:
         lpips_model, lpips_skipped = None, str(reason)
-    hdr_views = {id(v) for v in first_per_camera(views) if v.hdr is not None}
+    first = first_per_camera(views)
+    cameras = {id(v) for v in first}
+    hdr_views = {id(v) for v in first if v.hdr is not None}
     # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
     fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
+    response = camera_response(scene, pipeline.exposures)
     with pipeline.evaluating():
         rows = [
-            _score_view(pipeline, view, view.name in fitted, id(view) in hdr_views, lpips_model, render_dir)
+            _score_view(
+                pipeline,
+                view,
+                view.name in fitted,
+                id(view) in hdr_views,
+                response if id(view) in cameras else None,
+                lpips_model,
+                render_dir,
+            )
             for view in views
         ]
     metrics = _summarise_rows(pipeline, scene, rows)
     metrics["radiance_scale"] = pipeline.calibration.scale
     metrics["radiance_units"] = pipeline.calibration.units
+    metrics["hdr_basis"] = pipeline.calibration.basis
     metrics["test_views"] = len({v.view_id for v in views})
     metrics["ldr_exposure_fitted"] = sum(view.name in fitted for view in views)
-    for key in (*HDR_KEYS, "lpips_ldr", "lpips_hdr"):
+    for key in (*HDR_KEYS, *RADIANCE_KEYS, "lpips_ldr", "lpips_hdr"):
         values = [row[key] for row in rows if key in row and not math.isnan(row[key])]  # NaN: no pixel to score
         metrics[key] = _mean(values) if values else None
     peaks = [row["hdr_peak_ratio"] for row in rows if "hdr_peak_ratio" in row]
     # A mean of ratios hides a lost source behind an overshoot elsewhere: the worst view, in stops.
     metrics["hdr_peak_ratio_worst"] = max(peaks, key=lambda r: abs(math.log(max(r, 1e-12)))) if peaks else None
+    metrics["hdr_warnings"] = radiance_warnings(metrics)
     if lpips_skipped:
         metrics["lpips_skipped"] = lpips_skipped
     metrics["views"] = rows
@@ -105,9 +129,16 @@ def evaluate(
 
 
 def _score_view(
-    pipeline: Pipeline, view: View, fit_exposure: bool, score_hdr: bool, lpips_model, render_dir: Path | None
+    pipeline: Pipeline,
+    view: View,
+    fit_exposure: bool,
+    score_hdr: bool,
+    response: torch.Tensor | None,
+    lpips_model,
+    render_dir: Path | None,
 ) -> dict[str, Any]:
-    """One view's own figures: LDR always, HDR (and its renders under `render_dir`) when `score_hdr`."""
+    """One view's own figures: LDR always, HDR against its ground truth (and its renders under
+    `render_dir`) when `score_hdr`, HDR against the photo linearised through `response` when given."""
     output = (
         pipeline.render_matching(view.camera, view.image)
         if fit_exposure
@@ -123,12 +154,15 @@ def _score_view(
     }
     if lpips_model is not None:
         row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
+    if response is not None:
+        row.update(radiance_consistency(output.hdr, decode(view.image, response), view.image))
     if score_hdr:
         assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
         row.update(hdr_metrics(output.hdr, view.hdr))
         row.update(hdr_scale_metrics(output.hdr, view.hdr, view.image))
         row.update(source_metrics(output.hdr, view.hdr, ldr, view.image))
         row["chroma_outliers"] = chroma_outliers(output.hdr, view.hdr, view.image)
+        row.update(clipped_split_metrics(output.hdr, view.hdr, view.image))
         if lpips_model is not None:
             row["lpips_hdr"] = lpips_distance(lpips_model, *tone_mapped_pair(output.hdr, view.hdr, "own_max"))
         if render_dir is not None:

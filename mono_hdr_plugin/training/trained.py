@@ -12,7 +12,7 @@ from mono_hdr_plugin.core.registry import get_backbone
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.training.calibration import fit_radiance_calibration
 from mono_hdr_plugin.training.checkpoints import CheckpointError, load_checkpoint
-from mono_hdr_plugin.training.config import TrainConfig, saved_train_config
+from mono_hdr_plugin.training.config import TrainConfig, hdr_supervised_views, saved_train_config
 from mono_hdr_plugin.training.frames import ExposureModel, calibrate
 from mono_hdr_plugin.training.pipeline import Pipeline
 from mono_hdr_plugin.training.resume import check_scored_data
@@ -85,5 +85,6 @@ def load_trained_model(
         ) from error
     pipeline.eval()
     if not pipeline.calibration.fitted:  # a checkpoint written before calibration existed
-        pipeline.calibration = fit_radiance_calibration(pipeline, scene, payload["step"])
+        hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
+        pipeline.calibration = fit_radiance_calibration(pipeline, scene, payload["step"], hdr_views)
     return TrainedModel(pipeline, scene, config, payload["step"], payload["train_seconds"])

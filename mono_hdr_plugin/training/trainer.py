@@ -9,6 +9,7 @@ checkpoints, the benchmarks' curves) is a `TrainingHook`. `run_training` is `mon
 claims --out first (one run per folder, no earlier run replaced unasked; docs/robustness.md).
 """
 
+import dataclasses
 import json
 import time
 from collections import deque
@@ -43,6 +44,13 @@ from mono_hdr_plugin.training.config import (
     step_limit,
 )
 from mono_hdr_plugin.training.evaluation import evaluate
+from mono_hdr_plugin.training.hdr_prior import (
+    camera_response,
+    ground_truth_views,
+    hdr_basis,
+    prior_radiance,
+    resolve_prior_weight,
+)
 from mono_hdr_plugin.training.hooks import (
     CheckpointEvery,
     EvaluateEvery,
@@ -84,9 +92,13 @@ class Trainer:
         self.config, self.scene = config, scene
         torch.manual_seed(config.seed)
         ldr_share, _ = parse_view_ratio(config.hdr_view_ratio)
+        self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
         method_config = config.hdr
         if ldr_share == 0:  # HDR-only row of the ratio study: no LDR photo is used
             method_config = MethodConfig(**{**vars(method_config), "use_ldr_loss": False, "use_h2l_loss": False})
+        uses_ground_truth = any(ground_truth_views(scene, self.hdr_views))
+        prior_weight = resolve_prior_weight(method_config, uses_ground_truth)
+        method_config = dataclasses.replace(method_config, hdr_prior_weight=prior_weight)
         self.pipeline = Pipeline.create(
             backbone_name,
             config.backbone,
@@ -94,11 +106,12 @@ class Trainer:
             scene.scene_info(),
             build_view_exposures(config.exposure, scene),
         )
+        self.prior_response = camera_response(scene, self.pipeline.exposures) if prior_weight else None
+        """The response L_prior linearises photos with (None: no prior in this run)."""
         # Under --max-seconds alone this is a first guess: the measured step time replaces it.
         limit = step_limit(config)
         self.run_length = DEFAULT_MAX_STEPS if limit is None else limit
         self.pipeline.set_run_length(self.run_length)
-        self.hdr_views = hdr_supervised_views(len(scene.train), config.hdr_view_ratio)
         groups = self.pipeline.parameter_groups()
         for group in groups:
             group["base_lr"] = group["lr"]
@@ -163,8 +176,14 @@ class Trainer:
             self.view_order = torch.randperm(len(self.scene.train), generator=self.generator).tolist()
         return self.view_order.pop()
 
-    def _batch(self, view: View, use_hdr: bool) -> tuple[Camera, Targets]:
-        return training_batch(view, self.backbone.pixel_batch, use_hdr, self.generator)
+    def _batch(self, view: View, index: int) -> tuple[Camera, Targets]:
+        """The step's camera and targets; on a view without HDR supervision, L_prior's target too."""
+        camera, targets = training_batch(view, self.backbone.pixel_batch, self.hdr_views[index], self.generator)
+        if self.prior_response is not None and targets.hdr is None:
+            exposures = self.pipeline.exposures
+            relative = 1.0 if exposures is None else float(torch.exp(exposures.log_relative(index)))
+            targets.radiance = prior_radiance(targets.ldr, self.prior_response, relative)
+        return camera, targets
 
     def _training_view(self, index: int) -> View:
         """Training view `index` at the pyramid level of this step (full size without --pyramid-levels)."""
@@ -187,7 +206,7 @@ class Trainer:
         started = time.perf_counter()
         index = self._next_view()
         view = self._training_view(index)
-        camera, targets = self._batch(view, self.hdr_views[index])
+        camera, targets = self._batch(view, index)
         for group in self.optimizer.param_groups:
             group["lr"] = self.pipeline.learning_rate(group, self.step)
         features, output = self.pipeline(camera, targets.exposure, view=index)
@@ -259,6 +278,11 @@ class Trainer:
         viewer's); then save, evaluate and write OUT/metrics.json (and renders). Ctrl-C stops after
         the step in progress, saves a checkpoint and raises TrainingInterrupted."""
         config = self.config
+        if not config.quiet:
+            basis = hdr_basis(self.scene, self.hdr_views, self.pipeline.exposures)
+            weight = self.method.config.hdr_prior_weight
+            prior = f"; L_prior weight {weight:g}" if self.prior_response is not None else ""
+            console.print(f"the HDR rests on: {basis}{prior}", markup=False, soft_wrap=True)
         hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
         if config.eval_every:
             hooks.append(EvaluateEvery(config.eval_every))
@@ -293,7 +317,7 @@ class Trainer:
     def calibrate(self) -> None:
         """Refit the radiance scale (training.calibration) on the current model, unless it already is."""
         if self.pipeline.calibration.step != self.step:
-            self.pipeline.calibration = fit_radiance_calibration(self.pipeline, self.scene, self.step)
+            self.pipeline.calibration = fit_radiance_calibration(self.pipeline, self.scene, self.step, self.hdr_views)
 
     def evaluate(self, save_renders: bool = False) -> dict[str, Any]:
         """Test-view metrics of the current model (eval mode, HDR calibrated), with the step and

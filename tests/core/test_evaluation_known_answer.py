@@ -41,7 +41,11 @@ HDR_KEYS = (
     "hdr_peak_ratio",
     "ldr_peak_ratio",
     "chroma_outliers",
+    "hdr_psnr_clipped",
+    "hdr_psnr_unclipped",
+    "clipped_fraction",
 )
+RADIANCE_KEYS = tuple(f"hdr_{score}_{c}" for score in ("rank_correlation", "log_slope") for c in "rgb")
 
 
 def mu_law(x: np.ndarray) -> np.ndarray:
@@ -144,6 +148,11 @@ def expected_row(
             **scale_figures(hdr, gt, photo),
             **source_figures(hdr, gt, ldr, photo),
         )
+        clipped = (photo >= 1.0).any(-1)
+        for key, part in (("hdr_psnr_clipped", clipped), ("hdr_psnr_unclipped", ~clipped)):
+            error = np.mean((by_gt_pred[part] - by_gt_gt[part]) ** 2) if part.any() else math.nan
+            row[key] = math.nan if math.isnan(error) else (math.inf if error == 0 else -10 * math.log10(error))
+        row["clipped_fraction"] = float(clipped.mean())
     return row
 
 
@@ -167,9 +176,10 @@ def assert_rows(
         assert row["view"] == view.stem
         assert all(type(row[key]) is float for key in want), "figures must be plain floats (JSON)"
         scores = {k for k in row if k not in ("view", "view_id", "exposure", "ldr_psnr", "ldr_ssim", "lpips_ldr")}
-        assert scores - {"lpips_hdr"} == (set(HDR_KEYS) if scored else set()), row["view"]
+        # the scores against the photo itself (RADIANCE_KEYS) need no ground truth: tests/core/test_hdr_prior.py
+        assert scores - {"lpips_hdr", *RADIANCE_KEYS} == (set(HDR_KEYS) if scored else set()), row["view"]
         for key, value in want.items():
-            assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6), (row["view"], key)
+            assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6, nan_ok=True), (row["view"], key)
         expected.append(want)
     return expected
 
@@ -241,7 +251,8 @@ class TestEvaluateKnownAnswer:
             item.hdr = None
         metrics = evaluate(known_pipeline(scene, "mono"), scene)
         assert all(metrics[key] is None for key in HDR_KEYS)
-        assert not any(key.startswith("hdr_") for row in metrics["views"] for key in row)
+        # only the scores against the photo itself remain (no ground truth needed)
+        assert not any(key.startswith("hdr_") and key not in RADIANCE_KEYS for row in metrics["views"] for key in row)
 
     def test_no_test_view_at_a_training_exposure_is_an_error(self):
         scene = known_scene()
@@ -384,9 +395,10 @@ class TestEvalCommandKnownAnswer:
             assert [row["view"] for row in metrics["views"]] == [v.stem for v in views]
             for row, want in zip(metrics["views"], expected):
                 for key, value in want.items():
-                    assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6), (row["view"], key)
+                    assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6, nan_ok=True), (row["view"], key)
             for key in ("ldr_psnr", "ldr_ssim", *HDR_KEYS):
-                assert metrics[key] == pytest.approx(mean(w[key] for w in expected), rel=2e-5), key
+                values = [w[key] for w in expected if not math.isnan(w[key])]  # NaN: no pixel of that kind
+                assert metrics[key] == pytest.approx(mean(values), rel=2e-5), key
             assert metrics["test_views"] == 2
             assert metrics["radiance_scale"] == pytest.approx(scale, rel=1e-5)
             assert metrics["radiance_units"] == "ground_truth"

@@ -103,6 +103,13 @@ def reference_terms(pipeline, camera, targets, config, kind: str, beta: float) -
         terms["h2l"] = beta * photometric(from_hdr, targets.ldr, kind)
     if config.hdr_log_weight and targets.hdr is not None:
         terms["hdr_log"] = config.hdr_log_weight * relative_hdr_error(hdr, targets.hdr, targets.ldr)
+    if config.hdr_prior_weight and targets.radiance is not None:
+        exposed = (targets.ldr > 0.05) & (targets.ldr < 0.95)  # channel by channel
+        radiance = targets.radiance[exposed]
+        floor = 1e-4 * radiance.mean()
+        terms["hdr_prior"] = config.hdr_prior_weight * (
+            (torch.log(hdr[exposed] + floor) - torch.log(radiance + floor)).abs().mean()
+        )
     if config.method == "hdr-nerf":
         unit = method.crf(torch.zeros(1, 3))
         options = config.options
@@ -119,8 +126,8 @@ class StepProbe:
         self.names = {id(p): name for name, p in trainer.pipeline.named_parameters()}
         batch, forward, step = trainer._batch, trainer.pipeline.forward, trainer.optimizer.step
 
-        def record_batch(view, use_hdr):
-            self.batch = batch(view, use_hdr)
+        def record_batch(view, index):
+            self.batch = batch(view, index)
             return self.batch
 
         def record_forward(camera, exposure, view=None):
@@ -281,6 +288,7 @@ class TestHdrViewRatioRows:
         for _ in range(2):
             record, _ = check_step(probe, "voxel-grid")
             assert "hdr" not in record and probe.batch[1].hdr is None
+            assert "hdr_prior" in record and probe.batch[1].radiance is not None  # the photos' own radiance
 
     def test_two_to_one_row_gives_hdr_to_its_views_only(self, tmp_path, voxel_scene):
         trainer = make_trainer(tmp_path, voxel_scene, "voxel-grid", ratio="2:1")

@@ -92,7 +92,8 @@ class TestPixelBatches:
         trainer = voxel_trainer(tmp_path, voxel_scene)
         monkeypatch.setattr(trainer.backbone, "pixel_batch", 4000)
         view = voxel_scene.train[1]
-        camera, targets = trainer._batch(view, use_hdr=True)
+        trainer.hdr_views[1] = True
+        camera, targets = trainer._batch(view, 1)
         pixels = camera.pixels
         assert pixels.shape == (4000, 2) and targets.ldr.shape == targets.hdr.shape == (4000, 3)
         columns, rows = (pixels - 0.5).long().unbind(-1)
@@ -102,7 +103,8 @@ class TestPixelBatches:
         assert targets.exposure == view.exposure
         # 4000 draws from 256 pixels reach every one of them (the chance to miss one is 1e-4)
         assert torch.unique(rows * 16 + columns).numel() == 256
-        _, without_hdr = trainer._batch(view, use_hdr=False)
+        trainer.hdr_views[1] = False
+        _, without_hdr = trainer._batch(view, 1)
         assert without_hdr.hdr is None
 
     def test_every_batch_holds_the_brightest_pixel(self, tmp_path, voxel_scene, monkeypatch):
@@ -114,8 +116,9 @@ class TestPixelBatches:
         hdr = view.hdr.clone()
         hdr[11, 5] = 64.0 * hdr.max()
         view = dataclasses.replace(view, hdr=hdr)
+        trainer.hdr_views[0] = True
         for _ in range(20):
-            camera, targets = trainer._batch(view, use_hdr=True)
+            camera, targets = trainer._batch(view, 0)
             assert targets.hdr.max() == hdr.max()
             assert (camera.pixels == torch.tensor([5.5, 11.5])).all(-1).any()
 

@@ -47,7 +47,9 @@ def build_dataset(
     notes = check_registered(config, photos, reconstruction.groups, merged=merged)
     response, response_source, response_notes = bracket_response(plans, staged, config.raw_response, console)
     hdr_views = mark_views(photos, plans)
-    report = write_dataset(config, reconstruction, photos, staged, plans, hdr_views, response, work, dataset, console)
+    report = write_dataset(
+        config, reconstruction, photos, staged, plans, hdr_views, response, response_source, work, dataset, console
+    )
     report.reference_iso, report.reference_f_number = reference["iso"], reference["f_number"]
     report.response, report.ignored, report.video = response_source, ignored, video
     report.warnings = notes + bracket_notes + response_notes + exposure_warnings(photos, reference)

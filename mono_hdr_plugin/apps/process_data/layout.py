@@ -33,6 +33,7 @@ def write_dataset(
     plans: list[BracketPlan],
     hdr_views: list[HdrView],
     response: np.ndarray | None,
+    response_source: str | None,
     work: Path,
     dataset: Path,
     console: Console,
@@ -42,7 +43,7 @@ def write_dataset(
     model, grid = pinhole_model(reconstruction.model, photos, work, console)
     write_images(config, photos, staged, grid, dataset, console)
     write_hdr_views(config, plans, hdr_views, staged, response, grid, dataset, console)
-    test_views = write_metadata(config, model, photos, response, dataset)
+    test_views = write_metadata(config, model, photos, response, dataset, response_source)
     camera = model.cameras[next(iter(model.cameras))]
     return ProcessReport(
         out=config.out,
@@ -107,7 +108,12 @@ def write_hdr_views(
 
 
 def write_metadata(
-    config: ProcessDataConfig, model, photos: list[PhotoRecord], response: np.ndarray | None, dataset: Path
+    config: ProcessDataConfig,
+    model,
+    photos: list[PhotoRecord],
+    response: np.ndarray | None,
+    dataset: Path,
+    response_source: str | None = None,
 ) -> list[str]:
     """sparse/0 (intrinsics scaled to the images), exposures.json, splits.json, camera_response.json;
     the test views."""
@@ -122,6 +128,7 @@ def write_metadata(
         write_json(
             dataset / RESPONSE_FILE,
             {
+                "source": response_source,
                 "code_values": np.linspace(0, 1, len(response)).round(6).tolist(),
                 "linear_rgb": response.round(8).tolist(),
             },

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from mono_hdr_plugin.apps.studio.capture import capture
+from mono_hdr_plugin.apps.studio.capture import capture, inverse_response_curve
 from mono_hdr_plugin.apps.studio.render import SceneRender, render_scene
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
@@ -105,5 +105,20 @@ def studio_captured_scene(scene: StudioScene, seed: int = 0) -> CapturedScene:
             "effects": scene.effects,
             "exposures": scene.exposures,
             "unbounded": unbounded,
+            "camera_response": capture_response(scene).tolist(),
+            "camera_response_source": f"of the studio's capture ({capture_curve_name(scene)})",
         },
     )
+
+
+def capture_response(scene: StudioScene) -> np.ndarray:
+    """The response table [256, 3] (code value k / 255 -> linear exposure) of the scene's camera: its
+    curve where the scene declares one (`crf` among its effects), else linear. What a user who knows
+    the camera would give: the HDR prior and the calibration then linearise photos as they were made."""
+    code = np.linspace(0.0, 1.0, 256)
+    linear = inverse_response_curve(code, scene.capture).astype(np.float64) if "crf" in scene.effects else code
+    return np.stack([linear] * 3, -1)
+
+
+def capture_curve_name(scene: StudioScene) -> str:
+    return f"{scene.capture.crf} curve" if "crf" in scene.effects else "linear"

@@ -209,18 +209,21 @@ def _points(model, where: Path):
     return torch.from_numpy(points).float(), torch.from_numpy(colours).float()
 
 
-def _response(folder: Path) -> list | None:
-    """The response table [256][3] (code value k / 255 -> linear) of camera_response.json, if any."""
+def _response(folder: Path) -> tuple[list | None, str | None]:
+    """The response table [256][3] (code value k / 255 -> linear) of camera_response.json, if any, and
+    where it came from (its "source")."""
     path = folder / RESPONSE_FILE
     if not path.is_file():
-        return None
-    table = np.asarray(load_json(path, "delete it; process-data writes it again").get("linear_rgb", []), np.float64)
+        return None, None
+    content = load_json(path, "delete it; process-data writes it again")
+    table = np.asarray(content.get("linear_rgb", []), np.float64)
     if table.shape != (256, 3) or not np.isfinite(table).all() or (np.diff(table, axis=0) <= 0).any():
         raise DatasetError(
             f"{path}: linear_rgb must be 256 increasing [r, g, b] rows; delete the file (sRGB is "
             "then assumed) or run process-data again"
         )
-    return table.tolist()
+    source = content.get("source")
+    return table.tolist(), source if isinstance(source, str) else f"of {path.name}"
 
 
 def _test_names(folder: Path, names: list[str]) -> set[str] | None:
@@ -326,6 +329,7 @@ def read(folder: Path) -> CapturedScene:
     _check_camera_sizes(views, width, height, folder)
     _check_each_photo_once(views, [image.name for _, image in entries], exposures, folder)
     points, colours = _points(model, folder / MODEL_FOLDER)
+    response, response_source = _response(folder)
     bounds = (
         bounds_from_points(points.numpy()) if points is not None else bounds_from_cameras([v.camera for v in views])
     )
@@ -340,7 +344,8 @@ def read(folder: Path) -> CapturedScene:
             "source": str(folder),
             "layout": "hdr-gs",
             "unknown_exposures": exposures.unknown,
-            "camera_response": _response(folder),
+            "camera_response": response,
+            "camera_response_source": response_source,
             "partial_hdr_expected": (folder / REPORT_FILE).is_file(),
         },
     )
