@@ -19,9 +19,9 @@ $(BIN)/mono-hdr: pyproject.toml
 install: $(BIN)/mono-hdr
 
 # A fixed number of steps (not seconds), so the figure is the same on every machine up to
-# float summation order (benchmarks/run_committed.sh's machine: 39.70 dB in 44 s).
+# float summation order (41.69 dB since L2H-CC is non-decreasing, issue 44; 39.70 dB in 44 s before).
 DEMO_STEPS := 1000
-DEMO_EXPECTED_HDR_PSNR := 39.7
+DEMO_EXPECTED_HDR_PSNR := 41.7
 
 demo: install
 	$(BIN)/mono-hdr train gs --scene demo --max-steps $(DEMO_STEPS) --out outputs/demo --overwrite
