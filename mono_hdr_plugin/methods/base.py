@@ -116,8 +116,8 @@ class Targets:
     exposure: float
     hdr: Tensor | None = None
     radiance: Tensor | None = None
-    """The photo's radiance where it is well exposed, f^-1(ldr) / (t / t_ref): L_prior's target on a view
-    trained without HDR ground truth (None: no prior)."""
+    """The radiance the photo records, f^-1(ldr) / (t / t_ref), at every pixel: L_prior's target on a view
+    trained without HDR ground truth, used where the photo is well exposed (None: no prior)."""
 
 
 def saturate_like(pred: Tensor, photo: Tensor) -> Tensor:
