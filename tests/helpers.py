@@ -20,3 +20,20 @@ def quiet_config(backbone_config, out, method: str | None = None, **settings):
 
     quiet = {"quiet": True, "save_renders": False, "checkpoint_every": 10**9}
     return train_config_for(type(backbone_config), method)(backbone=backbone_config, out=out, **(quiet | settings))
+
+
+def real_photos(name: str):
+    """The folder of a real capture beside the project (`shared/data/real/<name>`: third-party photos
+    read in place, never copied into the repository). Skipped where it is absent, except under CI,
+    which always has it: there a missing folder fails instead of passing silently."""
+    import os
+    from pathlib import Path
+
+    import pytest
+
+    folder = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / name
+    if not folder.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"{folder}: the real photos are missing; CI runs beside shared/data/real")
+        pytest.skip(f"{folder}: real photos not available here")
+    return folder

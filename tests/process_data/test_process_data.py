@@ -22,7 +22,7 @@ from mono_hdr_plugin.apps.process_data.exposures import (
 )
 from mono_hdr_plugin.apps.process_data.photos import check_one_camera, find_photos, load_photo
 from mono_hdr_plugin.apps.process_data.records import PhotoRecord
-from mono_hdr_plugin.apps.process_data.sfm import check_registered
+from mono_hdr_plugin.apps.process_data.sfm import MapperAttempt, Reconstruction, check_registered
 from mono_hdr_plugin.apps.studio.alignment import similarity
 from mono_hdr_plugin.apps.studio.shoot import save_jpeg
 from mono_hdr_plugin.core.validation import FlagError
@@ -262,6 +262,19 @@ class TestReadExif:
             exposure_time=1 / 60, f_number=2.8, iso=400.0, focal_35mm=26.0, camera="Mono-HDR Pixel 8"
         )
 
+    def test_gps_south_and_west_below_sea_level(self, tmp_path):
+        path = save_jpeg(tmp_path / "a.jpg", np.zeros((4, 4, 3)), gps=(-33.85675, -151.21525, -12.5))
+        with Image.open(path) as image:
+            assert read_exif(image).gps == pytest.approx((-33.85675, -151.21525, -12.5), abs=1e-6)
+
+    def test_gps_as_a_phone_writes_it(self, tmp_path):
+        # Lund, as the opensfm_lund photos carry it: 55 deg 41' 53.4" N, 13 deg 11' 43.4" E, 37 m
+        exif = Image.Exif()
+        exif.get_ifd(0x8825).update({1: "N", 2: (55.0, 41.0, 53.4), 3: "E", 4: (13.0, 11.0, 43.4), 6: 37.0})
+        Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.jpg", exif=exif)
+        with Image.open(tmp_path / "a.jpg") as image:
+            assert read_exif(image).gps == pytest.approx((55 + 41 / 60 + 53.4 / 3600, 13 + 11 / 60 + 43.4 / 3600, 37))
+
     def test_no_exif(self, tmp_path):
         Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.jpg")
         with Image.open(tmp_path / "a.jpg") as image:
@@ -412,9 +425,20 @@ class TestTooFewRegistered:
             for i in range(10)
         ]
         config = ProcessDataConfig(images=tmp_path, out=tmp_path / "out", min_registered=0.6)
-        with pytest.raises(DatasetError, match=r"placed only 5 of 10 photos \(need 6.*2 separate groups.*5.jpg, 6.jpg"):
-            check_registered(config, photos, models=2)
-        assert check_registered(replace(config, min_registered=0.5), photos, models=1) != []
+        attempts = [MapperAttempt("incremental", 2, 0.5, 1.0), MapperAttempt("global", 5, 0.7, 1.0)]
+        split = Reconstruction(model=None, matcher="exhaustive", groups=2, mapper="global", attempts=attempts)
+        with pytest.raises(
+            DatasetError, match=r"placed only 5 of 10 photos \(need 6.*2 separate groups.*5.jpg, 6.jpg"
+        ) as error:
+            check_registered(config, photos, split)
+        # the advice names what was tried and only what was not: exhaustive matching and the default
+        # lens model ran already
+        assert "exhaustive matching; incremental placed 2, global placed 5" in str(error.value)
+        assert "--matcher" not in str(error.value) and "--camera-model" not in str(error.value)
+        one = Reconstruction(model=None, matcher="sequential", groups=1, mapper="incremental", attempts=attempts[:1])
+        with pytest.raises(DatasetError, match=r"try --matcher exhaustive and --mapper auto"):
+            check_registered(replace(config, mapper="incremental", matcher="sequential"), photos, one)
+        assert check_registered(replace(config, min_registered=0.5), photos, one) != []
 
 
 class TestExposureWarnings:

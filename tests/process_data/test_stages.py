@@ -28,7 +28,18 @@ from mono_hdr_plugin.apps.process_data.layout import choose_test_views, install,
 from mono_hdr_plugin.apps.process_data.photos import StagedPhoto, find_inputs, stage_photos
 from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord
 from mono_hdr_plugin.apps.process_data.report import ProcessReport, print_report
-from mono_hdr_plugin.apps.process_data.sfm import check_registered, choose_matcher, mark_registered
+from mono_hdr_plugin.apps.process_data.sfm import (
+    MAPPERS,
+    MapperAttempt,
+    Reconstruction,
+    best_attempt,
+    check_registered,
+    choose_mappers,
+    choose_matcher,
+    gps_metres,
+    gps_rms_metres,
+    mark_registered,
+)
 from mono_hdr_plugin.apps.studio.shoot import save_jpeg
 from mono_hdr_plugin.core.validation import FlagError
 from mono_hdr_plugin.data.errors import DatasetError
@@ -142,6 +153,21 @@ class TestSfmStage:
         assert choose_matcher("auto", 80) == "exhaustive" and choose_matcher("auto", 81) == "sequential"
         assert choose_matcher("sequential", 3) == "sequential"
 
+    def test_mapper_choice(self):
+        assert choose_mappers("auto") == ("incremental", "incremental-forward", "global") == MAPPERS
+        assert choose_mappers("global") == ("global",)
+
+    def test_best_attempt_places_most_then_fits_best(self):
+        attempts = [
+            MapperAttempt("incremental", 2, 0.3, 1.0),
+            MapperAttempt("incremental-forward", 28, 0.6, 1.0),
+            MapperAttempt("global", 28, 0.5, 1.0),
+        ]
+        assert best_attempt(attempts) == 2  # a tie in photos placed: the lower reprojection error
+        attempts[2].placed = 27
+        assert best_attempt(attempts) == 1  # more photos beat a lower error
+        assert best_attempt([MapperAttempt("incremental", 0, None, 1.0)]) is None
+
     def test_placed_photos_are_marked_and_the_others_reported(self, tmp_path):
         placed = {"000_0.png", "001_0.png", "002_0.png"}
         model = SimpleNamespace(
@@ -150,11 +176,12 @@ class TestSfmStage:
         photos = [record(i) for i in range(4)]
         mark_registered(photos, model)
         assert [photo.registered for photo in photos] == [True, True, True, False]
-        notes = check_registered(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, models=1)
+        placed_by = Reconstruction(model=model, matcher="exhaustive", groups=1)
+        notes = check_registered(ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, placed_by)
         assert notes == ["1 photo(s) could not be placed and are left out: p3.jpg"]
         assert (
             check_registered(
-                ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, models=1, merged={"p3.jpg"}
+                ProcessDataConfig(images=tmp_path, out=tmp_path / "out"), photos, placed_by, merged={"p3.jpg"}
             )
             == []
         )
@@ -338,6 +365,9 @@ class TestReportStage:
             num_points=100,
             test_views=["000_0.png"],
             warnings=["a note"],
+            mapper="global",
+            mapper_attempts=[MapperAttempt("incremental", 0, None, 1.0), MapperAttempt("global", 2, 0.5, 1.0)],
+            gps_rms_m=4.26,
         )
         data = report.to_json()
         assert data["failed"] == ["p2.jpg"] and data["exposure_range"] == (1 / 60, 1 / 15)
@@ -345,8 +375,63 @@ class TestReportStage:
         stream = io.StringIO()
         print_report(report, Console(file=stream, width=200))
         text = stream.getvalue()
-        assert "placed 2 / 3 photos (exhaustive matching), 100 points, mean reprojection error 0.500 px" in text
+        assert (
+            "placed 2 / 3 photos (exhaustive matching, global mapper; placed by each: incremental 0, global 2), "
+            "100 points, mean reprojection error 0.500 px" in text
+        )
+        assert "camera positions against the photos' GPS: 4.3 m RMS after a similarity fit" in text
+        assert data["mapper_attempts"][1] == {
+            "mapper": "global",
+            "placed": 2,
+            "mean_reprojection_error": 0.5,
+            "seconds": 1.0,
+        }
         assert "exposures 0.0166667 s to 0.0666667 s (2.0 stops)" in text
         assert "2 views: 0 HDR (merged brackets), 2 single-exposure LDR; 1 held out for testing" in text
         assert "warning: a note" in text and "left out (not placed): p2.jpg" in text
         assert f"next: mono-hdr train gs --data {tmp_path / 'mine'} --out outputs/mine" in text
+
+
+class TestGpsCheck:
+    def test_degrees_to_local_metres(self):
+        # one arc-second of latitude is 30.9 m (a quarter of the WGS 84 equator over 90 * 3600);
+        # one of longitude at 60 degrees north half of that
+        second = 1 / 3600
+        positions = np.array([[60.0, 10.0, 5.0], [60.0 + second, 10.0, 5.0], [60.0, 10.0 + second, 9.0]])
+        metres = gps_metres(positions)
+        arc_second = 6_378_137.0 * np.pi / 180 / 3600
+        assert np.allclose(metres[1] - metres[0], [0.0, arc_second, 0.0], atol=1e-3)
+        assert np.allclose(metres[2] - metres[0], [arc_second * 0.5, 0.0, 4.0], atol=2e-3)
+
+    @staticmethod
+    def placed(centres, gps):
+        images = {
+            i: SimpleNamespace(name=f"{i}.png", has_pose=True, projection_center=lambda c=c: np.asarray(c, float))
+            for i, c in enumerate(centres)
+        }
+        staged = [SimpleNamespace(name=f"{i}.png", exif=PhotoExif(gps=g)) for i, g in enumerate(gps)]
+        return SimpleNamespace(images=images), staged
+
+    def test_similar_layout_fits_to_the_gps_error(self):
+        # a street walk 100 m north and 20 m east; the model is at 1/50 scale, rotated and shifted
+        rng = np.random.default_rng(0)
+        east_north = np.stack([np.linspace(0, 20, 10), np.linspace(0, 100, 10), np.zeros(10)], -1)
+        east_north[:, 2] = rng.normal(0, 0.5, 10)
+        to_degrees = 180 / np.pi / 6_378_137.0
+        latitude = 55.0 + east_north[:, 1] * to_degrees
+        longitude = 13.0 + east_north[:, 0] * to_degrees / np.cos(np.radians(55.0))
+        gps = list(zip(latitude, longitude, 30.0 + east_north[:, 2]))
+        turn = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+        centres = (east_north / 50.0) @ turn.T + [3.0, -1.0, 2.0]
+        model, staged = self.placed(centres, gps)
+        assert gps_rms_metres(model, staged) < 0.05
+        # the same with one camera 10 m off along the street: RMS about 10 / sqrt(10), less the fit's share
+        centres[4] += turn @ np.array([0.0, 10.0, 0.0]) / 50.0
+        model, staged = self.placed(centres, gps)
+        assert 2.0 < gps_rms_metres(model, staged) < 3.2
+
+    def test_without_enough_gps_there_is_no_figure(self):
+        model, staged = self.placed([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [(55.0, 13.0, 0.0), None, (55.1, 13.0, 0.0)])
+        assert gps_rms_metres(model, staged) is None
+        model, staged = self.placed([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [(55.0, 13.0, 0.0)] * 3)
+        assert gps_rms_metres(model, staged) is None  # one spot: no direction to fit

@@ -12,7 +12,13 @@ from mono_hdr_plugin.apps.process_data.exposures import exposure_warnings, photo
 from mono_hdr_plugin.apps.process_data.layout import install, write_dataset
 from mono_hdr_plugin.apps.process_data.photos import find_inputs, stage_photos
 from mono_hdr_plugin.apps.process_data.report import ProcessReport, print_report
-from mono_hdr_plugin.apps.process_data.sfm import check_registered, initial_camera_params, mark_registered, run_sfm
+from mono_hdr_plugin.apps.process_data.sfm import (
+    check_registered,
+    gps_rms_metres,
+    initial_camera_params,
+    mark_registered,
+    run_sfm,
+)
 from mono_hdr_plugin.data.io import write_json
 from mono_hdr_plugin.data.layouts.hdr_gs import REPORT_FILE
 
@@ -44,13 +50,15 @@ def build_dataset(
     mark_registered(photos, reconstruction.model)
     plans, bracket_notes = find_bracket_plans(config, photos, staged, reconstruction.model, console)
     merged = {photos[i].source for plan in plans for i in plan.members}
-    notes = check_registered(config, photos, reconstruction.groups, merged=merged)
+    notes = check_registered(config, photos, reconstruction, merged=merged)
     response, response_source, response_notes = bracket_response(plans, staged, config.raw_response, console)
     hdr_views = mark_views(photos, plans)
     report = write_dataset(
         config, reconstruction, photos, staged, plans, hdr_views, response, response_source, work, dataset, console
     )
     report.reference_iso, report.reference_f_number = reference["iso"], reference["f_number"]
+    report.mapper, report.mapper_attempts = reconstruction.mapper, reconstruction.attempts
+    report.gps_rms_m = gps_rms_metres(reconstruction.model, staged)
     report.response, report.ignored, report.video = response_source, ignored, video
     report.warnings = notes + bracket_notes + response_notes + exposure_warnings(photos, reference)
     return report

@@ -45,6 +45,11 @@ class ProcessDataConfig:
     matcher: Literal["auto", "exhaustive", "sequential"] = "auto"
     """Which photo pairs to match: exhaustive (every pair, small sets), sequential (neighbours in
     file-name order: videos, large sets), or auto (exhaustive up to 80 photos)."""
+    mapper: Literal["auto", "incremental", "incremental-forward", "global"] = "auto"
+    """How structure from motion places the photos: COLMAP's incremental mapper (incremental), the
+    same started from a pair with little parallax, as walking or driving straight ahead gives
+    (incremental-forward), GLOMAP's global mapper (global), or auto: each in that order until one
+    places every photo, keeping the model that places the most."""
     downscale: Literal[1, 2, 4] = 1
     """Shrink the training images by this factor (area averaging); intrinsics are scaled to match."""
     camera_model: Literal["SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE"] = "SIMPLE_RADIAL"

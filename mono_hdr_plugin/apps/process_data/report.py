@@ -8,6 +8,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mono_hdr_plugin.apps.process_data.records import HdrView, PhotoRecord, VideoRecord
+from mono_hdr_plugin.apps.process_data.sfm import MapperAttempt
 
 
 @dataclass
@@ -34,6 +35,13 @@ class ProcessReport:
     """Input files not used: JPEG twins of RAW files."""
     video: VideoRecord | None = None
     warnings: list[str] = field(default_factory=list)
+    mapper: str = "incremental"
+    """The structure-from-motion mapper whose model was kept."""
+    mapper_attempts: list[MapperAttempt] = field(default_factory=list)
+    """Every mapper that ran: photos placed, reprojection error, seconds."""
+    gps_rms_m: float | None = None
+    """RMS metres between camera centres and the photos' EXIF GPS after a similarity fit (None
+    without GPS): a check of the poses against an independent measurement, GPS error included."""
 
     @property
     def registered(self) -> list[PhotoRecord]:
@@ -98,10 +106,14 @@ def print_report(report: ProcessReport, console: Console) -> None:
             f"video {video.source}: kept {video.kept} of {video.candidates} candidate frames "
             f"({video.fps:g} per second, the sharpest of each three, blurred ones dropped)"
         )
+    tried = ", ".join(f"{attempt.mapper} {attempt.placed}" for attempt in report.mapper_attempts)
     console.print(
-        f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching), "
+        f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching, "
+        f"{report.mapper} mapper{f'; placed by each: {tried}' if len(report.mapper_attempts) > 1 else ''}), "
         f"{report.num_points} points, mean reprojection error {report.mean_reprojection_error:.3f} px"
     )
+    if report.gps_rms_m is not None:
+        console.print(f"camera positions against the photos' GPS: {report.gps_rms_m:.1f} m RMS after a similarity fit")
     exposures = (
         "exposures unknown (learned in training)"
         if report.exposure_range is None

@@ -13,6 +13,9 @@ from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
 EXIF_IFD = 0x8769
+GPS_IFD = 0x8825
+GPS_LATITUDE_REF, GPS_LATITUDE, GPS_LONGITUDE_REF, GPS_LONGITUDE = 1, 2, 3, 4
+GPS_ALTITUDE_REF, GPS_ALTITUDE = 5, 6
 TAG_MAKE, TAG_MODEL, TAG_ORIENTATION = 0x010F, 0x0110, 0x0112
 TAG_EXPOSURE_TIME, TAG_F_NUMBER, TAG_ISO, TAG_FOCAL_35MM = 0x829A, 0x829D, 0x8827, 0xA405
 TAG_DATE_TIME_ORIGINAL, TAG_SUBSEC_TIME_ORIGINAL = 0x9003, 0x9291
@@ -36,6 +39,8 @@ class PhotoExif:
     differences between photos are used."""
     auto_bracket: bool = False
     """ExposureMode says the camera took this photo as part of an automatic exposure bracket."""
+    gps: tuple[float, float, float] | None = None
+    """(latitude, longitude in degrees, north and east positive; altitude in metres, 0 when absent)."""
 
 
 def exif_number(value) -> float | None:
@@ -61,6 +66,31 @@ def exif_timestamp(date_time, subseconds=None) -> float | None:
     return seconds + (float(f"0.{digits}") if digits.isdigit() else 0.0)
 
 
+def gps_degrees(value, reference) -> float | None:
+    """An EXIF GPS coordinate (degrees, minutes, seconds as rationals) with its N/S/E/W reference."""
+    if not isinstance(value, (tuple, list)) or len(value) != 3:
+        return None
+    try:
+        degrees = float(value[0]) + float(value[1]) / 60 + float(value[2]) / 3600
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    if not math.isfinite(degrees):
+        return None
+    return -degrees if str(reference).strip("\x00 ").upper() in ("S", "W") else degrees
+
+
+def read_gps(exif: Image.Exif) -> tuple[float, float, float] | None:
+    """(latitude, longitude, altitude) from the GPS block, or None without a usable position."""
+    block = exif.get_ifd(GPS_IFD)
+    latitude = gps_degrees(block.get(GPS_LATITUDE), block.get(GPS_LATITUDE_REF))
+    longitude = gps_degrees(block.get(GPS_LONGITUDE), block.get(GPS_LONGITUDE_REF))
+    if latitude is None or longitude is None or abs(latitude) > 90 or abs(longitude) > 180:
+        return None
+    altitude = exif_number(block.get(GPS_ALTITUDE)) or 0.0  # exif_number drops 0 and negatives: 0 then
+    below_sea = block.get(GPS_ALTITUDE_REF) in (1, b"\x01")
+    return latitude, longitude, -altitude if below_sea else altitude
+
+
 def read_exif(image: Image.Image) -> PhotoExif:
     """The exposure, aperture, ISO, 35 mm focal length, camera, capture time and exposure mode."""
     exif = image.getexif()
@@ -78,6 +108,7 @@ def read_exif(image: Image.Image) -> PhotoExif:
         camera=camera or None,
         timestamp=exif_timestamp(tag(TAG_DATE_TIME_ORIGINAL), tag(TAG_SUBSEC_TIME_ORIGINAL)),
         auto_bracket=tag(TAG_EXPOSURE_MODE) == EXPOSURE_MODE_AUTO_BRACKET,
+        gps=read_gps(exif),
     )
 
 
@@ -96,6 +127,7 @@ def make_exif(
     orientation: int | None = None,
     timestamp: float | None = None,
     exposure_mode: int | None = None,
+    gps: tuple[float, float, float] | None = None,
 ) -> Image.Exif:
     """An Exif block with the given fields, as a camera writes them (pass it to Image.save(exif=...))."""
     exif = Image.Exif()
@@ -110,6 +142,19 @@ def make_exif(
     for tag, number in ((TAG_ISO, iso), (TAG_FOCAL_35MM, focal_35mm), (TAG_EXPOSURE_MODE, exposure_mode)):
         if number is not None:
             details[tag] = number
+    if gps is not None:
+        block = exif.get_ifd(GPS_IFD)
+        for number, reference, value, signs in (
+            (GPS_LATITUDE, GPS_LATITUDE_REF, gps[0], "NS"),
+            (GPS_LONGITUDE, GPS_LONGITUDE_REF, gps[1], "EW"),
+        ):
+            degrees = abs(value)
+            minutes = (degrees - int(degrees)) * 60
+            seconds = (minutes - int(minutes)) * 60
+            block[reference] = signs[value < 0]
+            block[number] = (_rational(int(degrees)), _rational(int(minutes)), _rational(round(seconds, 4)))
+        block[GPS_ALTITUDE_REF] = int(gps[2] < 0)
+        block[GPS_ALTITUDE] = _rational(round(abs(gps[2]), 3))
     if timestamp is not None:
         moment = datetime.fromtimestamp(timestamp)
         details[TAG_DATE_TIME_ORIGINAL] = moment.strftime(DATE_FORMAT)
