@@ -51,20 +51,28 @@ def textured_content(texture: Path) -> dict:
     }
 
 
-def textured_scene(texture: Path, views: int, resolution: int) -> StudioScene:
+def textured_scene(
+    texture: Path,
+    views: int,
+    resolution: int | tuple[int, int],
+    azimuth_deg: tuple[float, float] = (-150.0, -30.0),
+    fov_deg: float = 55.0,
+) -> StudioScene:
+    """The textured objects on an arc of `views` cameras; `resolution` is square or (width, height)."""
+    width, height = (resolution, resolution) if isinstance(resolution, int) else resolution
     return StudioScene(
-        name=f"process-data-{views}x{resolution}",
+        name=f"process-data-{views}x{width}x{height}-{azimuth_deg[0]:g}-{fov_deg:g}",
         description="noise-textured objects under a uniform sky",
         content=lambda: textured_content(texture),
         rig=CameraRig(
             target=(0.0, 0.3, 0.4),
             radius=3.2,
-            azimuth_deg=(-150.0, -30.0),
+            azimuth_deg=azimuth_deg,
             elevation_deg=(20.0, 40.0),
-            fov_deg=55.0,
+            fov_deg=fov_deg,
             views=views,
         ),
-        resolution=(resolution, resolution),
+        resolution=(width, height),
         spp=9,
         max_depth=2,
     )
@@ -80,8 +88,9 @@ class PhotoShoot:
     names: list[str]
 
 
-def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoShoot:
-    """Render (cached) and photograph view i at exposures[i % len], EXIF as a real camera writes it."""
+def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction], first_number: int = 1) -> PhotoShoot:
+    """Render (cached) and photograph view i at exposures[i % len], EXIF as a real camera writes it,
+    as IMG_<first_number + i>.jpg."""
     render = render_scene(scene)
     cameras = scene.cameras()
     focal_35mm = round(cameras[0].fx * 36.0 / max(scene.width, scene.height))
@@ -92,7 +101,7 @@ def shoot(scene: StudioScene, folder: Path, exposures: list[Fraction]) -> PhotoS
         # The scene's radiance is scaled for exposures around 2 s; photographing at 1.5 s times
         # the ratio to the first EXIF time keeps the photos well exposed whatever EXIF says.
         pixels = capture(render.radiance[index], 1.5 * float(exposure / exposures[0]), scene.effects, scene.capture)
-        name = f"IMG_{index + 1:04d}.jpg"
+        name = f"IMG_{index + first_number:04d}.jpg"
         save_jpeg(folder / name, pixels, exposure=exposure, iso=100, f_number=Fraction(28, 10), focal_35mm=focal_35mm)
         names.append(name)
         times.append(float(exposure))

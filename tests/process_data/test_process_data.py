@@ -6,6 +6,7 @@ from dataclasses import replace
 from fractions import Fraction
 
 import numpy as np
+import pycolmap
 import pytest
 import torch
 from helpers import quiet_config
@@ -373,8 +374,11 @@ class TestReadExposureCsv:
 
 class TestCheckOneCamera:
     def test_mixed_sizes(self, tmp_path):
-        with pytest.raises(DatasetError, match=r"different sizes.*2 at 40x30.*1 at 30x40 \(e.g. c.jpg\)"):
-            check_one_camera(["a.jpg", "b.jpg", "c.jpg"], [(40, 30), (40, 30), (30, 40)], [PhotoExif()] * 3, tmp_path)
+        with pytest.raises(DatasetError, match=r"different sizes.*2 at 40x30.*1 at 30x36 \(e.g. c.jpg\)"):
+            check_one_camera(["a.jpg", "b.jpg", "c.jpg"], [(40, 30), (40, 30), (30, 36)], [PhotoExif()] * 3, tmp_path)
+
+    def test_portrait_and_landscape_of_one_size_pass(self, tmp_path):
+        check_one_camera(["a.jpg", "b.jpg", "c.jpg"], [(40, 30), (40, 30), (30, 40)], [PhotoExif()] * 3, tmp_path)
 
     def test_mixed_camera_models(self, tmp_path):
         plain_photos(tmp_path / "photos", 2, exposure=Fraction(1, 50), model="Canon EOS R5")
@@ -474,6 +478,38 @@ class TestExposureWarnings:
 
     def test_moderate_range_is_quiet(self):
         assert exposure_warnings(self.photos(1 / 60, 1 / 15), {"iso": None, "f_number": None}) == []
+
+
+class TestMixedOrientations:
+    def test_portrait_and_landscape_photos_of_one_lens(self, studio_cache, texture, tmp_path):
+        # 12 landscape photos and 6 portrait ones between them, the same lens turned: one focal in pixels
+        landscape_fov = 55.0
+        portrait_fov = math.degrees(2 * math.atan(144 / 192 * math.tan(math.radians(landscape_fov / 2))))
+        landscape = textured_scene(texture, views=12, resolution=(192, 144), fov_deg=landscape_fov)
+        portrait = textured_scene(texture, 6, (144, 192), azimuth_deg=(-140.0, -40.0), fov_deg=portrait_fov)
+        folder = tmp_path / "photos"
+        first = shoot(landscape, folder, [Fraction(1, 60)])
+        second = shoot(portrait, folder, [Fraction(1, 60)], first_number=13)
+        report = process_data(ProcessDataConfig(images=folder, out=tmp_path / "d", num_threads=2))
+        assert report.failed == [] and len(report.registered) == 18
+        # every view cut to the centred square both orientations share
+        side = report.width  # COLMAP's undistorter may trim a pixel
+        assert report.height == side and 142 <= side <= 144
+        model = pycolmap.Reconstruction(tmp_path / "d" / "sparse" / "0")
+        assert len(model.cameras) == 2 and {(c.width, c.height) for c in model.cameras.values()} == {(side, side)}
+        # each principal point moved with its cut (24 px from the left of a landscape photo, from the
+        # top of a portrait one): both near the middle of the square again
+        principal = sorted((round(c.principal_point_x), round(c.principal_point_y)) for c in model.cameras.values())
+        assert all(abs(x - side / 2) <= 3 and abs(y - side / 2) <= 3 for x, y in principal), principal
+        rotation_error, position_error = camera_errors(tmp_path / "d", first.cameras + second.cameras)
+        assert rotation_error < ROTATION_LIMIT_DEG and position_error < POSITION_LIMIT
+
+    def test_other_sizes_are_still_refused(self, tmp_path):
+        plain_photos(tmp_path / "p", 2, size=(32, 24))
+        plain_photos(tmp_path / "q", 1, size=(30, 24))
+        (tmp_path / "q" / "p0.jpg").rename(tmp_path / "p" / "z.jpg")
+        with pytest.raises(DatasetError, match=r"photos of different sizes.*2 at 32x24.*1 at 30x24"):
+            process_data(ProcessDataConfig(images=tmp_path / "p", out=tmp_path / "d"))
 
 
 @pytest.mark.slow

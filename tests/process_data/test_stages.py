@@ -119,8 +119,8 @@ class TestPhotosStage:
         config = ProcessDataConfig(images=tmp_path / "photos", out=tmp_path / "out")
         sources, ignored, video = find_inputs(config, tmp_path / "work" / "frames", Console(quiet=True))
         assert [path.name for path in sources] == ["p0.jpg", "p1.jpg", "p2.jpg"] and ignored == [] and video is None
-        staged, size = stage_photos(sources, tmp_path / "work", "srgb", Console(quiet=True))
-        assert size == (32, 24)
+        staged, sizes = stage_photos(sources, tmp_path / "work", "srgb", Console(quiet=True))
+        assert sizes == [(32, 24)] * 3
         assert [stage.name for stage in staged] == ["000_0.png", "001_0.png", "002_0.png"]
         assert all((tmp_path / "work" / "input" / stage.name).is_file() for stage in staged)
         assert all(0.4 < stage.brightness < 0.6 and not stage.raw for stage in staged)

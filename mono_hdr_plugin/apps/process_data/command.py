@@ -13,9 +13,9 @@ from mono_hdr_plugin.apps.process_data.layout import install, write_dataset
 from mono_hdr_plugin.apps.process_data.photos import find_inputs, stage_photos
 from mono_hdr_plugin.apps.process_data.report import ProcessReport, print_report
 from mono_hdr_plugin.apps.process_data.sfm import (
+    camera_groups,
     check_registered,
     gps_rms_metres,
-    initial_camera_params,
     mark_registered,
     run_sfm,
 )
@@ -43,10 +43,10 @@ def build_dataset(
 ) -> ProcessReport:
     """Photos and exposures, poses, brackets, the layout in `dataset` (scratch files in `work`); the report."""
     sources, ignored, video = find_inputs(config, work / "frames", console)
-    staged, size = stage_photos(sources, work, config.raw_response, console)
+    staged, sizes = stage_photos(sources, work, config.raw_response, console)
     photos, reference = photo_records(staged, csv_table, config.exposure, config.exposure_csv)
-    params = initial_camera_params(config.camera_model, staged[0].exif, *size)
-    reconstruction = run_sfm(config, work / "input", [s.name for s in staged], work, params, console)
+    cameras = camera_groups(config.camera_model, staged, sizes)
+    reconstruction = run_sfm(config, work / "input", cameras, work, console)
     mark_registered(photos, reconstruction.model)
     plans, bracket_notes = find_bracket_plans(config, photos, staged, reconstruction.model, console)
     merged = {photos[i].source for plan in plans for i in plan.members}

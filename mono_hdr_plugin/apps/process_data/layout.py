@@ -40,7 +40,9 @@ def write_dataset(
 ) -> ProcessReport:
     """images/, exr/, sparse/0, exposures.json, splits.json and camera_response.json; the report of them."""
     error = reconstruction.model.compute_mean_reprojection_error()
-    model, grid = pinhole_model(reconstruction.model, photos, work, console)
+    model, grids = pinhole_model(reconstruction.model, photos, work, console)
+    camera_of = {image.name: image.camera_id for image in reconstruction.model.images.values()}
+    grid = {photo.name: grids.get(camera_of.get(photo.name, -1)) for photo in photos}
     write_images(config, photos, staged, grid, dataset, console)
     write_hdr_views(config, plans, hdr_views, staged, response, grid, dataset, console)
     test_views = write_metadata(config, model, photos, response, dataset, response_source)
@@ -60,23 +62,57 @@ def write_dataset(
 
 
 def pinhole_model(model, photos: list[PhotoRecord], work: Path, console: Console):
-    """The model of the dataset's views only, on a pinhole camera; the grid that remaps a photo onto it."""
+    """The model of the dataset's views only, on pinhole cameras of one size; for each camera id the
+    grid that remaps a photo onto its pinhole camera (None: the photo is the image already).
+
+    Photos of two orientations (portrait and landscape) are placed with a camera each; a backbone
+    renders one image size, so every view is cut to the centred window all cameras share (a square
+    for a 4:3 phone held both ways) and each camera's principal point moves with its window.
+    """
     for image in list(model.images.values()):  # one image per viewpoint: other bracket members leave the model
         if image.has_pose and not next(p.view for p in photos if p.name == image.name):
             model.deregister_frame(image.frame_id)
-    distorted = model.cameras[next(iter(model.cameras))]
-    if distorted.model.name not in PINHOLE_MODELS:
+    distorted = dict(model.cameras.items())
+    if any(camera.model.name not in PINHOLE_MODELS for camera in distorted.values()):
         with console.status("undistorting"):
             model = undistort(model, work / "input", work, [p.name for p in photos if p.view])
-    camera = model.cameras[next(iter(model.cameras))]
-    return model, pinhole_grid(distorted, camera)
+    offsets = crop_to_shared_window(model)
+    grids = {
+        camera_id: pinhole_grid(distorted[camera_id], camera, offsets[camera_id])
+        for camera_id, camera in model.cameras.items()
+    }
+    return model, grids
+
+
+def crop_to_shared_window(model) -> dict[int, tuple[int, int]]:
+    """Cut every camera of `model` to the centred window of the smallest width and height among them;
+    shift principal points and 2D observations with it. Returns each camera's (left, top) cut."""
+    import pycolmap
+
+    width = min(camera.width for camera in model.cameras.values())
+    height = min(camera.height for camera in model.cameras.values())
+    offsets = {}
+    for camera_id, camera in model.cameras.items():
+        left, top = (camera.width - width) // 2, (camera.height - height) // 2
+        offsets[camera_id] = (left, top)
+        if (left, top) == (0, 0) and (camera.width, camera.height) == (width, height):
+            continue
+        fx, fy, cx, cy = camera.calibration_matrix()[[0, 1, 0, 1], [0, 1, 2, 2]]
+        model.cameras[camera_id] = pycolmap.Camera.create_from_model_name(camera_id, "PINHOLE", 1.0, width, height)
+        model.cameras[camera_id].params = [fx, fy, cx - left, cy - top]
+    for image in model.images.values():
+        left, top = offsets[image.camera_id]
+        if (left, top) != (0, 0):
+            for point in image.points2D:
+                point.xy = np.asarray(point.xy) - (left, top)
+    return offsets
 
 
 def write_images(
     config: ProcessDataConfig,
     photos: list[PhotoRecord],
     staged: list[StagedPhoto],
-    grid: torch.Tensor | None,
+    grid: dict[str, torch.Tensor | None],
     dataset: Path,
     console: Console,
 ) -> None:
@@ -84,7 +120,7 @@ def write_images(
     views = [(photo, stage) for photo, stage in zip(photos, staged) if photo.view]
     for photo, stage in track(views, description="writing images", console=console):
         encoded, _ = photo_pixels(stage, config.raw_response)
-        pixels = downscale_image(remap(encoded, grid), config.downscale, photo.name)
+        pixels = downscale_image(remap(encoded, grid[photo.name]), config.downscale, photo.name)
         write_png(dataset / "images" / photo.name, pixels, bits=16 if stage.raw else 8)
 
 
@@ -94,7 +130,7 @@ def write_hdr_views(
     hdr_views: list[HdrView],
     staged: list[StagedPhoto],
     response: np.ndarray | None,
-    grid: torch.Tensor | None,
+    grid: dict[str, torch.Tensor | None],
     dataset: Path,
     console: Console,
 ) -> None:
@@ -102,7 +138,7 @@ def write_hdr_views(
     for plan, hdr_view in zip(plans, hdr_views):
         with console.status(f"merging {', '.join(hdr_view.sources)}"):
             hdr = merge_plan(plan, staged, response, config.raw_response, hdr_view.sources)
-            hdr = downscale_image(remap(hdr, grid), config.downscale, hdr_view.name)
+            hdr = downscale_image(remap(hdr, grid[hdr_view.name]), config.downscale, hdr_view.name)
         hdr_view.dynamic_range_stops = round(dynamic_range_stops(hdr), 2)
         write_exr(dataset / "exr" / f"{hdr_view.name.split('_')[0]}.exr", hdr)
 
@@ -154,17 +190,23 @@ def undistort(model, image_dir: Path, work: Path, names: list[str]):
     return pycolmap.Reconstruction(undistorted / "sparse")
 
 
-def pinhole_grid(distorted, pinhole) -> torch.Tensor | None:
+def pinhole_grid(distorted, pinhole, offset: tuple[int, int] = (0, 0)) -> torch.Tensor | None:
     """[1, H, W, 2] grid_sample coordinates: where each pixel of the pinhole camera lies in the photo.
 
-    None when the cameras are the same (no distortion). COLMAP's pixel (0, 0) covers [0, 1]^2,
+    None when the photo is the image (no distortion, no cut). COLMAP's pixel (0, 0) covers [0, 1]^2,
     grid_sample's (align_corners=False) covers [-1, -1 + 2 / W], so x_grid = 2 x / W - 1.
     """
-    if distorted.model.name in PINHOLE_MODELS:
+    if distorted.model.name in PINHOLE_MODELS and (distorted.width, distorted.height) == (
+        pinhole.width,
+        pinhole.height,
+    ):
         return None
     rows, cols = np.mgrid[0 : pinhole.height, 0 : pinhole.width].astype(np.float64) + 0.5
-    rays = pinhole.cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1))
-    pixels = distorted.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], -1), check_cheirality=False)
+    if distorted.model.name in PINHOLE_MODELS:  # only cut: the window's pixels, shifted
+        pixels = np.stack([cols.ravel() + offset[0], rows.ravel() + offset[1]], -1)
+    else:
+        rays = pinhole.cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1))
+        pixels = distorted.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], -1), check_cheirality=False)
     grid = pixels / np.array([distorted.width, distorted.height]) * 2 - 1
     return torch.from_numpy(grid.reshape(1, pinhole.height, pinhole.width, 2)).float()
 

@@ -126,9 +126,9 @@ def photo_pixels(photo: StagedPhoto, raw_response: RawResponse) -> tuple[np.ndar
 
 def stage_photos(
     sources: list[Path], work: Path, raw_response: RawResponse, console: Console
-) -> tuple[list[StagedPhoto], tuple[int, int]]:
+) -> tuple[list[StagedPhoto], list[tuple[int, int]]]:
     """8-bit upright copies `work/input/<index:03d>_0.png` (the HDR-GS naming) for structure from
-    motion; the size.
+    motion; each one's (width, height) after EXIF orientation.
 
     RAW photos are demosaiced once: their linear pixels are kept in work/linear, their SfM copy
     goes through the RAW response.
@@ -155,20 +155,22 @@ def stage_photos(
             f"{len(unreadable)} photo(s) cannot be read; fix or remove them:\n  " + "\n  ".join(unreadable)
         )
     check_one_camera([s.source.name for s in staged], sizes, [s.exif for s in staged], sources[0].parent)
-    return staged, sizes[0]
+    return staged, sizes
 
 
 def check_one_camera(sources: list[str], sizes: list[tuple[int, int]], exifs: list[PhotoExif], folder: Path) -> None:
-    """All photos must come from one camera at one size: one set of intrinsics is estimated."""
+    """All photos must come from one camera at one size, held upright or sideways: one set of
+    intrinsics is estimated per orientation."""
     by_size = Counter(sizes)
-    if len(by_size) > 1:
+    upright = {(min(w, h), max(w, h)) for w, h in by_size}
+    if len(upright) > 1:
         listing = ", ".join(
             f"{count} at {w}x{h} (e.g. {sources[sizes.index((w, h))]})" for (w, h), count in by_size.most_common()
         )
         raise DatasetError(
             f"{folder}: photos of different sizes after EXIF orientation ({listing}); "
-            "process one camera and one orientation at a time (move the others to another "
-            "folder) or resize them to one size"
+            "process one camera at a time (move the others to another folder) or resize them to one "
+            "size (portrait and landscape photos of one size are fine)"
         )
     cameras = Counter(exif.camera for exif in exifs if exif.camera)
     if len(cameras) > 1:

@@ -78,6 +78,28 @@ def initial_camera_params(model: str, exif: PhotoExif, width: int, height: int) 
     return pycolmap.Camera.create_from_model_name(1, model, focal, width, height).params_to_string()
 
 
+@dataclass
+class CameraGroup:
+    """Photos that share one camera in structure from motion: one size and orientation."""
+
+    names: list[str]
+    """Staged file names (work/input)."""
+    params: str
+    """Starting intrinsics (COLMAP's parameter string; empty: COLMAP's guess)."""
+
+
+def camera_groups(model: str, staged: list[StagedPhoto], sizes: list[tuple[int, int]]) -> list[CameraGroup]:
+    """One camera per photo size, in order of first appearance: a phone held upright and sideways
+    gives portrait and landscape photos whose intrinsics are the same lens turned, but whose
+    principal point and lens distortion COLMAP describes in each orientation's own pixels."""
+    groups: dict[tuple[int, int], CameraGroup] = {}
+    for photo, size in zip(staged, sizes):
+        if size not in groups:
+            groups[size] = CameraGroup([], initial_camera_params(model, photo.exif, *size))
+        groups[size].names.append(photo.name)
+    return list(groups.values())
+
+
 def choose_matcher(matcher: str, count: int) -> str:
     if matcher != "auto":
         return matcher
@@ -99,16 +121,18 @@ def best_attempt(attempts: list[MapperAttempt]) -> int | None:
 
 
 def run_sfm(
-    config: ProcessDataConfig, image_dir: Path, names: list[str], work: Path, camera_params: str, console: Console
+    config: ProcessDataConfig, image_dir: Path, cameras: list[CameraGroup], work: Path, console: Console
 ) -> Reconstruction:
-    """Features, matches and mapping of the photos `names` in `image_dir`: the mappers of --mapper in
-    order, keeping the model that places the most photos."""
+    """Features, matches and mapping of the photos of `cameras` in `image_dir`: the mappers of
+    --mapper in order, keeping the model that places the most photos."""
     import pycolmap
 
     pycolmap.logging.minloglevel = pycolmap.logging.Level.ERROR.value  # keep the console readable
     pycolmap.set_random_seed(config.seed)
     database = work / "database.db"
-    _extract_features(config, database, image_dir, names, camera_params, console)
+    names = [name for camera in cameras for name in camera.names]
+    for camera in cameras:  # one extraction per camera: COLMAP's SINGLE mode gives each call one camera
+        _extract_features(config, database, image_dir, camera.names, camera.params, console)
     matcher = choose_matcher(config.matcher, len(names))
     _match(config, database, matcher, console)
     attempts: list[MapperAttempt] = []

@@ -144,15 +144,15 @@ def make_exif(
             details[tag] = number
     if gps is not None:
         block = exif.get_ifd(GPS_IFD)
-        for number, reference, value, signs in (
+        for position, reference, coordinate, signs in (
             (GPS_LATITUDE, GPS_LATITUDE_REF, gps[0], "NS"),
             (GPS_LONGITUDE, GPS_LONGITUDE_REF, gps[1], "EW"),
         ):
-            degrees = abs(value)
+            degrees = abs(coordinate)
             minutes = (degrees - int(degrees)) * 60
             seconds = (minutes - int(minutes)) * 60
-            block[reference] = signs[value < 0]
-            block[number] = (_rational(int(degrees)), _rational(int(minutes)), _rational(round(seconds, 4)))
+            block[reference] = signs[coordinate < 0]
+            block[position] = (_rational(int(degrees)), _rational(int(minutes)), _rational(round(seconds, 4)))
         block[GPS_ALTITUDE_REF] = int(gps[2] < 0)
         block[GPS_ALTITUDE] = _rational(round(abs(gps[2]), 3))
     if timestamp is not None:
