@@ -17,10 +17,14 @@ from PIL import Image, UnidentifiedImageError
 
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
+from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import check_readable
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+UNKNOWN_EXPOSURE = 1.0
+"""Seconds given to a photo whose exposure is unknown (null in exposures.json, or a layout without
+exposures); the reader names it in the scene's metadata["unknown_exposures"] for the trainer to learn."""
 MAX_NAME_BYTES = 255
 """Longest file or folder name common file systems allow."""
 
@@ -110,6 +114,14 @@ def check_exposure(value, where: str) -> float:
             f"{where}: exposure time {shown(value)} is not a positive number of seconds; fix the exposure value"
         )
     return exposure
+
+
+def point_colours_u8(scene: CapturedScene) -> np.ndarray:
+    """[N, 3] uint8 colours of the scene's points for a writer (grey where it has none, as 3DGS)."""
+    assert scene.points is not None
+    if scene.point_colors is None:
+        return np.full((len(scene.points), 3), 128, np.uint8)
+    return (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
 
 
 def camera_from(where: str, **fields) -> Camera:
