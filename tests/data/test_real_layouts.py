@@ -10,12 +10,13 @@ import math
 import numpy as np
 import pytest
 import torch
+from test_layouts import make_scene
 
 from mono_hdr_plugin.apps.studio.commands import SynthConfig, synth
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.errors import DatasetError, MissingFileError
 from mono_hdr_plugin.data.io import write_png
-from mono_hdr_plugin.data.layouts import detect_layout, read_layout
+from mono_hdr_plugin.data.layouts import detect_layout, read_layout, write_layout
 from mono_hdr_plugin.data.loading import load_scene
 
 # LLFF columns (down, right, back) of a camera whose down is world -z and right is world -y: it looks
@@ -298,3 +299,19 @@ class TestSynthRealLayouts:
             assert [i for i, split in enumerate(splits) if split == "test"] == [0, 8]
         else:
             assert splits == [v.split for v in original.views]
+
+
+class TestWriteIsAllOrNothing:
+    @pytest.mark.parametrize("layout", ["llff", "nerfstudio"])
+    def test_failed_write_leaves_no_detectable_dataset(self, tmp_path, layout):
+        """The file that makes a folder a dataset (poses_bounds.npy, transforms.json) is written last."""
+        scene = make_scene(views=3)
+
+        def unreadable():
+            raise OSError("disk unplugged")
+
+        scene.views[2].shots[2].image = unreadable
+        with pytest.raises(OSError, match="disk unplugged"):
+            write_layout(scene, tmp_path / layout, layout)
+        with pytest.raises(DatasetError, match="unknown dataset layout"):
+            detect_layout(tmp_path / layout)
