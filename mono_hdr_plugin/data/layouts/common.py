@@ -13,11 +13,11 @@ import re
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image, UnidentifiedImageError
 
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
-from mono_hdr_plugin.data.captures import CapturedScene
 from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import check_readable
 
@@ -116,12 +116,11 @@ def check_exposure(value, where: str) -> float:
     return exposure
 
 
-def point_colours_u8(scene: CapturedScene) -> np.ndarray:
-    """[N, 3] uint8 colours of the scene's points for a writer (grey where it has none, as 3DGS)."""
-    assert scene.points is not None
-    if scene.point_colors is None:
-        return np.full((len(scene.points), 3), 128, np.uint8)
-    return (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+def point_colours_u8(count: int, colours: torch.Tensor | None) -> np.ndarray:
+    """[count, 3] uint8 colours of a scene's points for a writer (grey where it has none, as 3DGS)."""
+    if colours is None:
+        return np.full((count, 3), 128, np.uint8)
+    return (colours.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
 
 
 def camera_from(where: str, **fields) -> Camera:

@@ -371,7 +371,7 @@ def _write_model(scene: CapturedScene, model_folder: Path) -> None:
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
         reconstruction.add_image_with_trivial_frame(image, pose)
     if scene.points is not None:
-        for xyz, rgb in zip(scene.points.double().numpy(), point_colours_u8(scene)):
+        for xyz, rgb in zip(scene.points.double().numpy(), point_colours_u8(len(scene.points), scene.point_colors)):
             reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
     model_folder.mkdir(parents=True, exist_ok=True)
     reconstruction.write(str(model_folder))

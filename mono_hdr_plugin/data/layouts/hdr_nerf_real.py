@@ -24,11 +24,11 @@ from mono_hdr_plugin.data.layouts.common import (
     natural_key,
     split_view_exposure,
 )
-from mono_hdr_plugin.data.layouts.llff import image_names, llff_camera, llff_row, load_pose_rows
+from mono_hdr_plugin.data.layouts.llff import PoseFile, image_names, llff_camera, llff_row, load_pose_rows
 
 POSES_FILE = "poses_bounds_exps.npy"
 IMAGE_FOLDER = "input_images"
-COLUMNS = 18
+POSE_FILE = PoseFile(POSES_FILE, 18, "pose 15, near, far, exposure", "a pose, bound or exposure")
 
 
 def detect(folder: Path) -> bool:
@@ -68,7 +68,7 @@ def read(folder: Path) -> CapturedScene:
         raise missing(images, f"the HDR-NeRF real layout keeps its photos in {IMAGE_FOLDER}/")
     # Rows pair with the string-sorted names, as the official loader's sorted(os.listdir).
     names = image_names(images)
-    rows = load_pose_rows(folder / POSES_FILE, COLUMNS, "pose 15, near, far, exposure", names, images)
+    rows = load_pose_rows(folder, POSE_FILE, names, images)
     groups = _group_by_view(images, names, rows)
     width, height = check_one_size({images / n: image_size(images / n) for n in names}, images)
     views = []

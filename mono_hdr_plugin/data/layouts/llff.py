@@ -13,6 +13,7 @@ metadata["unknown_exposures"], for the trainer to learn (as process-data's null 
 
 import functools
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,6 @@ from mono_hdr_plugin.data.layouts.common import (
 
 POSES_FILE = "poses_bounds.npy"
 IMAGE_FOLDER = "images"
-COLUMNS = 17
 TEST_EVERY = 8
 """NeRF's llffhold: views 0, 8, 16, ... are held out."""
 
@@ -62,21 +62,38 @@ def image_names(images: Path) -> list[str]:
     return sorted(p.name for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
 
 
-def load_pose_rows(path: Path, columns: int, content: str, names: list[str], images: Path) -> np.ndarray:
-    """The [N, columns] rows of an LLFF pose file, one per photo of `images`, all finite.
-    `content` names the columns in the message of a wrong shape."""
+@dataclass(frozen=True)
+class PoseFile:
+    """An LLFF-style pose file: its name, its number of columns and, for messages, what they hold."""
+
+    name: str
+    columns: int
+    content: str
+    """The columns, for the message of a wrong shape."""
+    values: str
+    """What one value is, for the message of one that is not a number."""
+
+
+POSE_FILE = PoseFile(POSES_FILE, 17, "pose 15, near, far", "a pose or bound")
+
+
+def load_pose_rows(folder: Path, pose_file: PoseFile, names: list[str], images: Path) -> np.ndarray:
+    """The rows of `pose_file` in `folder`, one per photo of `images` (in `names` order), all finite."""
+    path = folder / pose_file.name
     try:
         rows = np.load(path)
     except (ValueError, OSError, EOFError) as error:
         raise DatasetError(f"{path}: cannot read the array ({error}); regenerate it") from error
-    if rows.ndim != 2 or rows.shape[1] != columns:
-        raise DatasetError(f"{path}: shape {rows.shape}, expected (images, {columns}) ({content}); regenerate it")
+    if rows.ndim != 2 or rows.shape[1] != pose_file.columns:
+        raise DatasetError(
+            f"{path}: shape {rows.shape}, expected (images, {pose_file.columns}) ({pose_file.content}); regenerate it"
+        )
     if len(rows) != len(names):
         raise DatasetError(
             f"{path}: {len(rows)} rows but {images} has {len(names)} images; the poses are out of step "
             "with the images: restore the missing images or regenerate the file"
         )
-    return check_finite(rows, path, f"a value ({content})")
+    return check_finite(rows, path, pose_file.values)
 
 
 def llff_camera(where: str, row: np.ndarray, width: int, height: int) -> Camera:
@@ -138,7 +155,7 @@ def read(folder: Path) -> CapturedScene:
     if not images.is_dir():
         raise missing(images, f"the LLFF layout keeps its photos in {IMAGE_FOLDER}/")
     names = image_names(images)
-    rows = load_pose_rows(folder / POSES_FILE, COLUMNS, "pose 15, near, far", names, images)
+    rows = load_pose_rows(folder, POSE_FILE, names, images)
     width, height = check_one_size({images / n: image_size(images / n) for n in names}, images)
     copies = _downscaled_copies(folder, len(names), width, height)
     views = []

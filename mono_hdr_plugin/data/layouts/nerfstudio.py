@@ -313,7 +313,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
         vertices = np.zeros(len(scene.points), [(axis, "f4") for axis in "xyz"] + [(c, "u1") for c in COLOURS])
         for axis, values in zip("xyz", scene.points.numpy().T):
             vertices[axis] = values
-        for channel, values in zip(COLOURS, point_colours_u8(scene).T):
+        for channel, values in zip(COLOURS, point_colours_u8(len(scene.points), scene.point_colors).T):
             vertices[channel] = values
         write_ply_vertices(folder / POINTS_FILE, vertices)
         extra["ply_file_path"] = POINTS_FILE
