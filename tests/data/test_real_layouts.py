@@ -93,6 +93,12 @@ class TestLlff:
         (folder / "sparse" / "0").mkdir(parents=True)  # imgs2poses leaves COLMAP's model in the scene
         assert detect_layout(folder) == "llff"
 
+    def test_exposure_file_makes_it_hdr_nerf_real(self, tmp_path):
+        """HDR-NeRF real is LLFF with exposures: its poses_bounds_exps.npy decides, even beside poses_bounds.npy."""
+        folder = make_llff(tmp_path / "llff")
+        np.save(folder / "poses_bounds_exps.npy", np.zeros((9, 18)))
+        assert detect_layout(folder) == "hdr-nerf-real"
+
     @pytest.mark.parametrize(
         "damage, message",
         [

@@ -24,9 +24,16 @@ from mono_hdr_plugin.data.layouts.common import (
     natural_key,
     split_view_exposure,
 )
-from mono_hdr_plugin.data.layouts.llff import PoseFile, image_names, llff_camera, llff_row, load_pose_rows
+from mono_hdr_plugin.data.layouts.llff import (
+    EXPOSURES_POSES_FILE,
+    PoseFile,
+    image_names,
+    llff_camera,
+    llff_row,
+    load_pose_rows,
+)
 
-POSES_FILE = "poses_bounds_exps.npy"
+POSES_FILE = EXPOSURES_POSES_FILE
 IMAGE_FOLDER = "input_images"
 POSE_FILE = PoseFile(POSES_FILE, 18, "pose 15, near, far, exposure", "a pose, bound or exposure")
 

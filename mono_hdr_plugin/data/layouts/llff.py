@@ -34,13 +34,17 @@ from mono_hdr_plugin.data.layouts.common import (
 )
 
 POSES_FILE = "poses_bounds.npy"
+EXPOSURES_POSES_FILE = "poses_bounds_exps.npy"
+"""HDR-NeRF real's pose file (hdr_nerf_real.py): LLFF's rows with an exposure column."""
 IMAGE_FOLDER = "images"
 TEST_EVERY = 8
 """NeRF's llffhold: views 0, 8, 16, ... are held out."""
 
 
 def detect(folder: Path) -> bool:
-    return (folder / POSES_FILE).is_file()
+    """poses_bounds.npy, and not HDR-NeRF real's poses_bounds_exps.npy: a scene with exposure times is that
+    layout's, even with LLFF's file beside it."""
+    return (folder / POSES_FILE).is_file() and not (folder / EXPOSURES_POSES_FILE).is_file()
 
 
 def llff_to_opencv(pose: np.ndarray) -> np.ndarray:
