@@ -37,11 +37,16 @@ class ImageFile:
 
 @dataclass
 class Shot:
-    """One photo: exposure time in seconds and where its pixels come from."""
+    """One photo: exposure time in seconds and where its pixels come from.
+
+    `downscaled` maps a factor N to the same photo stored N times smaller beside it (LLFF's images_N/):
+    --downscale N reads that file, as every LLFF loader does, instead of averaging the full photo.
+    """
 
     exposure: float
     image: ImageSource
     name: str
+    downscaled: dict[int, ImageSource] = field(default_factory=dict)
 
 
 @dataclass

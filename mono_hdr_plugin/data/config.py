@@ -12,12 +12,12 @@ class DataConfig:
     """Dataset selection shared by every command that reads a scene."""
 
     data: Path | None = None
-    """A dataset folder on disk (HDR-NeRF synthetic/real or HDR-GS layout, detected)."""
+    """A dataset folder on disk (HDR-GS, HDR-NeRF synthetic/real, LLFF or nerfstudio layout, detected)."""
     scene: str | None = None
     """A built-in studio scene (see `mono-hdr scenes`), instead of --data."""
     layout: str = "auto"
     """On-disk layout of --data: auto detects it from the files present; or a registered layout
-    (`mono-hdr layouts`: hdr-gs, hdr-nerf-synthetic, hdr-nerf-real, or a plugin's)."""
+    (`mono-hdr layouts`: llff, hdr-gs, hdr-nerf-synthetic, hdr-nerf-real, nerfstudio, or a plugin's)."""
     protocol: Literal["single", "multi", "fixed"] = "single"
     """single: the paper's setting, every view at exposure t1/t3/t5 chosen by --exposure-index
     (train and LDR test); multi: HDR-NeRF/HDR-GS, each train view one random exposure of
@@ -31,7 +31,7 @@ class DataConfig:
     each size is rendered once and cached). A --data folder keeps its size: shrink it with --downscale."""
     downscale: int = 1
     """Integer factor to shrink images by (area averaging; cameras' focal lengths and principal point
-    scale with them), 2 reproduces the paper's half_res."""
+    scale with them), 2 reproduces the paper's half_res. An LLFF scene's images_N/ is read for N."""
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
 

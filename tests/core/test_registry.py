@@ -117,7 +117,7 @@ class TestBuiltinPlugins:
 
     def test_methods_layouts_and_studio(self):
         assert list(METHODS.available())[:6] == ["mono", "mlp-l2h", "mlp-h2l", "no-h2l", "hdr-nerf", "hdr-gs"]
-        assert list(LAYOUTS.available())[:3] == ["hdr-gs", "hdr-nerf-synthetic", "hdr-nerf-real"]
+        assert list(LAYOUTS.available())[:5] == ["llff", "hdr-gs", "hdr-nerf-synthetic", "hdr-nerf-real", "nerfstudio"]
         assert "demo" in SCENE_SOURCES.get("studio").names()
 
     def test_benchmarks_built_in_and_from_the_gs_entry_point(self):

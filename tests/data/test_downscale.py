@@ -29,11 +29,11 @@ def test_downscale_on_every_layout(tmp_path, layout, factor):
         assert (view.camera.width, view.camera.height) == (WIDTH // factor, HEIGHT // factor)
         assert view.image.shape == (HEIGHT // factor, WIDTH // factor, 3)
         np.testing.assert_allclose(view.image.numpy(), block_mean(big.image, factor), rtol=1e-5, atol=1e-6)
-        if big.hdr is not None:  # hdr-nerf-real has no HDR ground truth
+        if big.hdr is not None:  # hdr-nerf-real, llff and nerfstudio have no HDR ground truth
             np.testing.assert_allclose(view.hdr.numpy(), block_mean(big.hdr, factor), rtol=1e-5)
         # A world point lands on the downscaled pixel of its full-size projection (pixel edges at integers).
         full_pixel, _ = big.camera.project(POINT)
         small_pixel, _ = view.camera.project(POINT)
         torch.testing.assert_close(small_pixel, full_pixel / factor, atol=1e-4, rtol=0)
         assert view.camera.fx == pytest.approx(big.camera.fx / factor)
-    assert any(view.hdr is not None for view in small.train) == (layout != "hdr-nerf-real")
+    assert any(view.hdr is not None for view in small.train) == (layout in ("hdr-gs", "hdr-nerf-synthetic"))

@@ -16,10 +16,13 @@ from mono_hdr_plugin.data.errors import DatasetError, MissingFileError
 from mono_hdr_plugin.data.io import write_png
 from mono_hdr_plugin.data.layouts import detect_layout, read_layout, writable_layouts, write_layout
 from mono_hdr_plugin.data.layouts.common import natural_key
-from mono_hdr_plugin.data.layouts.hdr_nerf_real import llff_to_opencv, opencv_to_llff
+from mono_hdr_plugin.data.layouts.llff import llff_to_opencv, opencv_to_llff
 from mono_hdr_plugin.data.loading import load_scene
 
 WIDTH, HEIGHT, VIEWS = 16, 12, 12
+BRACKET_LAYOUTS = ["hdr-gs", "hdr-nerf-synthetic", "hdr-nerf-real"]
+"""The layouts that keep every exposure of a view and the scene's split (llff and nerfstudio hold one
+photo a view: test_real_layouts.py)."""
 EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 POINT = torch.tensor([[0.2, -0.1, 0.3]])
 
@@ -76,7 +79,10 @@ def written_nerf(tmp_path, toy):
 
 
 class TestRoundTrip:
-    @pytest.mark.parametrize("layout", writable_layouts())
+    def test_bracket_layouts_are_writable(self):
+        assert set(BRACKET_LAYOUTS) <= set(writable_layouts())
+
+    @pytest.mark.parametrize("layout", BRACKET_LAYOUTS)
     def test_same_cameras_exposures_pixels(self, tmp_path, toy, layout):
         write_layout(toy, tmp_path / layout, layout)
         assert detect_layout(tmp_path / layout) == layout
@@ -123,7 +129,7 @@ class TestRoundTrip:
 
 
 class TestCameraConversions:
-    @pytest.mark.parametrize("layout", writable_layouts())
+    @pytest.mark.parametrize("layout", BRACKET_LAYOUTS)
     def test_known_point_projects_to_same_pixel(self, tmp_path, toy, layout):
         write_layout(toy, tmp_path / layout, layout)
         for original, loaded in zip(by_split(toy), by_split(read_layout(tmp_path / layout))):
@@ -317,7 +323,7 @@ class TestDetectionAndLoading:
 
     def test_bad_layout_name(self, tmp_path):
         with pytest.raises(DatasetError, match="unknown --layout"):
-            read_layout(tmp_path, "llff")
+            read_layout(tmp_path, "mipnerf-blender")
 
     def test_natural_key(self):
         assert sorted(["10_0", "2_0", "1_0"], key=natural_key) == ["1_0", "2_0", "10_0"]

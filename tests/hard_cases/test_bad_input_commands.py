@@ -254,7 +254,7 @@ def test_scenes_no_render_lists_at_once(fresh_cache, capsys):
 
 def test_synth_to_a_layout_it_cannot_write_is_refused_before_rendering(fresh_cache, tmp_path):
     """Mitsuba would stop the test with RenderStarted: the flag is named before minutes of rendering."""
-    with pytest.raises(FlagError, match=r"--layout 'bogus' cannot be written; choose one of hdr-gs, "):
+    with pytest.raises(FlagError, match=r"--layout 'bogus' cannot be written; choose one of llff, hdr-gs, "):
         main(["synth", "--scene", "demo", "--layout", "bogus", "--out", str(tmp_path / "synth")])
     assert not (tmp_path / "synth").exists()
 

@@ -21,8 +21,7 @@ from mono_hdr_plugin.data.io import write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER, RESPONSE_FILE, SPLITS_FILE
 from mono_hdr_plugin.data.loading import downscale_image
 from mono_hdr_plugin.data.photos.brackets import dynamic_range_stops
-
-PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
+from mono_hdr_plugin.data.undistortion import PINHOLE_MODELS, pinhole_grid, remap
 
 
 def write_dataset(
@@ -188,36 +187,6 @@ def undistort(model, image_dir: Path, work: Path, names: list[str]):
     undistorted = work / "undistorted"
     pycolmap.undistort_images(undistorted, distorted, image_dir, image_names=names, output_type="COLMAP")
     return pycolmap.Reconstruction(undistorted / "sparse")
-
-
-def pinhole_grid(distorted, pinhole, offset: tuple[int, int] = (0, 0)) -> torch.Tensor | None:
-    """[1, H, W, 2] grid_sample coordinates: where each pixel of the pinhole camera lies in the photo.
-
-    None when the photo is the image (no distortion, no cut). COLMAP's pixel (0, 0) covers [0, 1]^2,
-    grid_sample's (align_corners=False) covers [-1, -1 + 2 / W], so x_grid = 2 x / W - 1.
-    """
-    if distorted.model.name in PINHOLE_MODELS and (distorted.width, distorted.height) == (
-        pinhole.width,
-        pinhole.height,
-    ):
-        return None
-    rows, cols = np.mgrid[0 : pinhole.height, 0 : pinhole.width].astype(np.float64) + 0.5
-    if distorted.model.name in PINHOLE_MODELS:  # only cut: the window's pixels, shifted
-        pixels = np.stack([cols.ravel() + offset[0], rows.ravel() + offset[1]], -1)
-    else:
-        rays = pinhole.cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1))
-        pixels = distorted.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], -1), check_cheirality=False)
-    grid = pixels / np.array([distorted.width, distorted.height]) * 2 - 1
-    return torch.from_numpy(grid.reshape(1, pinhole.height, pinhole.width, 2)).float()
-
-
-def remap(image: np.ndarray, grid: torch.Tensor | None) -> np.ndarray:
-    """Bilinear resampling of float [H, W, 3] pixels (LDR or linear HDR) onto the pinhole camera."""
-    if grid is None:
-        return image
-    pixels = torch.from_numpy(np.ascontiguousarray(image, np.float32)).permute(2, 0, 1)[None]
-    sampled = torch.nn.functional.grid_sample(pixels, grid, mode="bilinear", padding_mode="border", align_corners=False)
-    return sampled[0].permute(1, 2, 0).numpy()
 
 
 def scale_intrinsics(model, factor: int) -> None:

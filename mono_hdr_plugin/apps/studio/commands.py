@@ -27,7 +27,8 @@ class SynthConfig:
     """Folder to write the dataset into (created if missing)."""
     layout: str = "hdr-gs"
     """A writable layout (`mono-hdr layouts`): hdr-gs (images/, exr/, COLMAP sparse/0, exposures.json),
-    hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR) or hdr-nerf-real."""
+    hdr-nerf-synthetic (transforms/exposure JSON, PNGs, EXR), hdr-nerf-real, or llff / nerfstudio
+    (one photo a view, the middle exposure, no exposure times and no HDR: as real captures come)."""
     seed: int = 0
     """Seed of the simulated sensor noise."""
     resolution: int | None = None

@@ -1,6 +1,7 @@
 """Dataset layouts on disk (docs/datasets.md): detect, read, write; plugins add their own.
 
-The built-in ones are the published layouts of HDR-GS (COLMAP) and HDR-NeRF (synthetic, real).
+The built-in ones are the published layouts of HDR-GS (COLMAP) and HDR-NeRF (synthetic, real), and
+the real-capture layouts LLFF and nerfstudio (one photo a view, exposures learned).
 Every reader returns a CapturedScene with OpenCV camera-to-world cameras; every writer takes one.
 """
 
@@ -11,10 +12,14 @@ from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.layouts.base import LAYOUTS, DatasetLayout, register_layout
 
 # Imported in detection order, which sorting would change: each module registers its layout.
+# llff comes first: LLFF scenes (NeRF's, Mip-NeRF 360's) also hold COLMAP's sparse/0, which hdr-gs detects,
+# but their photos are not HDR-GS's <view>_<e> brackets; poses_bounds.npy is LLFF's alone.
 # isort: off
+from mono_hdr_plugin.data.layouts import llff  # noqa: F401 - registers the layout
 from mono_hdr_plugin.data.layouts import hdr_gs  # noqa: F401 - registers the layout
 from mono_hdr_plugin.data.layouts import hdr_nerf_synthetic  # noqa: F401 - registers the layout
 from mono_hdr_plugin.data.layouts import hdr_nerf_real  # noqa: F401 - registers the layout
+from mono_hdr_plugin.data.layouts import nerfstudio  # noqa: F401 - registers the layout
 # isort: on
 
 __all__ = [

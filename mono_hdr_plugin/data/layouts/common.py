@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image, UnidentifiedImageError
 
 from mono_hdr_plugin.core.cameras import Camera
@@ -21,6 +22,9 @@ from mono_hdr_plugin.data.errors import DatasetError, missing
 from mono_hdr_plugin.data.io import check_readable
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+UNKNOWN_EXPOSURE = 1.0
+"""Seconds given to a photo whose exposure is unknown (null in exposures.json, or a layout without
+exposures); the reader names it in the scene's metadata["unknown_exposures"] for the trainer to learn."""
 MAX_NAME_BYTES = 255
 """Longest file or folder name common file systems allow."""
 
@@ -110,6 +114,13 @@ def check_exposure(value, where: str) -> float:
             f"{where}: exposure time {shown(value)} is not a positive number of seconds; fix the exposure value"
         )
     return exposure
+
+
+def point_colours_u8(count: int, colours: torch.Tensor | None) -> np.ndarray:
+    """[count, 3] uint8 colours of a scene's points for a writer (grey where it has none, as 3DGS)."""
+    if colours is None:
+        return np.full((count, 3), 128, np.uint8)
+    return (colours.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
 
 
 def camera_from(where: str, **fields) -> Camera:

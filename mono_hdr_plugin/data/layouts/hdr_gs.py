@@ -39,6 +39,7 @@ from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json,
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.colmap_text import check_text_model
 from mono_hdr_plugin.data.layouts.common import (
+    UNKNOWN_EXPOSURE,
     camera_from,
     check_exposure,
     check_finite,
@@ -48,6 +49,7 @@ from mono_hdr_plugin.data.layouts.common import (
     json_object,
     load_json,
     natural_key,
+    point_colours_u8,
     split_view_exposure,
 )
 
@@ -57,8 +59,6 @@ SPLITS_FILE = "splits.json"
 RESPONSE_FILE = "camera_response.json"
 REPORT_FILE = "process_data.json"
 """Written by process-data: its captures have HDR only at the bracketed viewpoints, by design."""
-UNKNOWN_EXPOSURE = 1.0
-"""Seconds given to a photo whose exposure is unknown (null in exposures.json)."""
 POSES_FILE = "poses_bounds_exps.npy"
 MODEL_FOLDER = Path("sparse") / "0"
 MAX_EXPOSURES = 5
@@ -371,12 +371,7 @@ def _write_model(scene: CapturedScene, model_folder: Path) -> None:
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
         reconstruction.add_image_with_trivial_frame(image, pose)
     if scene.points is not None:
-        colours = (
-            np.full((len(scene.points), 3), 128, np.uint8)
-            if scene.point_colors is None  # grey, as 3DGS
-            else (scene.point_colors.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
-        )
-        for xyz, rgb in zip(scene.points.double().numpy(), colours):
+        for xyz, rgb in zip(scene.points.double().numpy(), point_colours_u8(len(scene.points), scene.point_colors)):
             reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
     model_folder.mkdir(parents=True, exist_ok=True)
     reconstruction.write(str(model_folder))
