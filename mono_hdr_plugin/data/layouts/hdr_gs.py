@@ -48,7 +48,9 @@ from mono_hdr_plugin.data.layouts.common import (
     json_object,
     load_json,
     natural_key,
+    read_pose_source,
     split_view_exposure,
+    write_pose_source,
 )
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
@@ -343,6 +345,7 @@ def read(folder: Path) -> CapturedScene:
         metadata={
             "source": str(folder),
             "layout": "hdr-gs",
+            "poses": read_pose_source(folder),
             "unknown_exposures": exposures.unknown,
             "camera_response": response,
             "camera_response_source": response_source,
@@ -398,6 +401,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
             exposures[name] = shot.exposure
     write_json(folder / EXPOSURES_FILE, exposures)
     _write_model(scene, folder / MODEL_FOLDER)
+    write_pose_source(scene.metadata, folder)
 
 
 @register_layout("hdr-gs")
