@@ -279,10 +279,16 @@ class TestCheckpointRoundTrip:
 
 
 class TestRefinedPosesFile:
+    def test_nothing_without_refinement(self, tmp_path, voxel_scene):
+        config = quiet_config(BACKBONES["voxel-grid"](), tmp_path / "run", max_steps=2)
+        trainer = Trainer(config, "voxel-grid", voxel_scene)
+        assert write_refined_poses(trainer.pipeline, voxel_scene, tmp_path / "run", 2, quiet=True) is None
+        assert not (tmp_path / "run" / "refined_poses.json").exists()
+
     def test_written_with_every_training_view(self, tmp_path, voxel_scene):
         trainer = refining_trainer(tmp_path, voxel_scene, "voxel-grid")
-        trainer.fit()
-        path = write_refined_poses(trainer.pipeline, voxel_scene, tmp_path / "run", trainer.step, quiet=True)
+        trainer.train()  # the command's run: it writes OUT/refined_poses.json after the last checkpoint
+        path = tmp_path / "run" / "refined_poses.json"
         report = json.loads(path.read_text())
         assert report["step"] == 2 and set(report["views"]) == {view.name for view in voxel_scene.train}
         index, name = next(
