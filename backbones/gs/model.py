@@ -12,6 +12,7 @@ from torch import Tensor, nn
 from backbones.gs._extension import load_extension
 from backbones.gs.ply import export_ply
 from backbones.gs.rasterizer import check_backend, project_gaussians, rasterize
+from backbones.gs.rigid import camera_as_world_motion, move_gaussians
 from backbones.gs.sh import num_sh_bases, rgb_to_sh, visible_colors
 from backbones.gs.sky import (
     background_rows,
@@ -270,15 +271,25 @@ class GaussianBackbone(Backbone):
         )
 
     def _project(self, camera: Camera):
-        """The scene's Gaussians (then the sky's, when used) projected into `camera`."""
+        """The scene's Gaussians (then the sky's, when used) projected into `camera`.
+
+        A refined pose (camera.c2w requires grad) reaches the C++ projection, which takes the pose
+        as a constant, as the same rigid motion of every Gaussian instead (backbones.gs.rigid).
+        """
         scales = torch.exp(self.log_scales.clamp(-20, 20))  # finite, so culled rows never see inf * 0
-        gaussians = (self.means, self.quats, scales, torch.sigmoid(self.opacity_logits))
+        means: Tensor = self.means
+        quats: Tensor = self.quats
+        opacities = torch.sigmoid(self.opacity_logits)
         if self.sky is not None:
-            gaussians = with_sky(self.sky, *gaussians)
-        return project_gaussians(*gaussians, camera, backend=self.config.backend)
+            means, quats, scales, opacities = with_sky(self.sky, means, quats, scales, opacities)
+        if camera.c2w.requires_grad:
+            camera, motion = camera_as_world_motion(camera)
+            means, quats = move_gaussians(means, quats, motion)
+        return project_gaussians(means, quats, scales, opacities, camera, backend=self.config.backend)
 
     def _visible_raw_colors(self, projected, camera: Camera) -> Tensor:
-        """Raw colours [V, 3] of the visible rows: the scene's by their SH, the sky's own."""
+        """Raw colours [V, 3] of the visible rows: the scene's by their SH, seen from `camera`'s centre
+        (the refined one, differentiable, when poses are refined), the sky's own."""
         scene_visible = projected.index.shape[0] if self.sky is None else scene_rows(projected, self.num_gaussians)
         index = projected.index[:scene_visible]
         degree, backend = self.active_sh_degree, self.config.backend

@@ -97,7 +97,10 @@ class _ShKernel(torch.autograd.Function):
         v_dc, v_rest, v_means = load_extension().sh_backward(
             sh_dc, sh_rest, means, index, center, ctx.degree, v_colors.contiguous()
         )
-        return v_dc, v_rest, v_means, None, None, None
+        # The colours see the means only through the direction mean - centre, so the centre's gradient
+        # is minus the sum of the means' (pose refinement moves the centre).
+        v_center = -v_means.sum(0) if ctx.needs_input_grad[4] else None
+        return v_dc, v_rest, v_means, None, v_center, None
 
 
 def visible_colors(
@@ -112,7 +115,8 @@ def visible_colors(
     """SH colours [V, 3] (without the +0.5) of the Gaussians `index` [V] seen from `camera_center`.
 
     sh_dc [N, 1, 3], sh_rest [N, K - 1, 3], means [N, 3]. Differentiable w.r.t. the
-    coefficients and the means (through the view direction); culled Gaussians cost nothing.
+    coefficients, the means and the camera centre (through the view direction); culled Gaussians
+    cost nothing.
     `backend="kernel"` runs the C++ extension, "torch" this module's `eval_sh` (its twin).
     """
     num_sh_bases(degree)

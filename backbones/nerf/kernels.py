@@ -8,25 +8,41 @@ import torch
 from torch import Tensor
 
 from backbones.nerf._extension import load_extension
+from backbones.nerf.reference import grid_encode_reference
 
 
 class _GridEncode(torch.autograd.Function):
     @staticmethod
     def forward(ctx, positions: Tensor, table: Tensor, resolutions: Tensor, offsets: Tensor) -> Tensor:
         positions = positions.contiguous()
-        ctx.save_for_backward(positions, resolutions, offsets)
+        ctx.save_for_backward(positions, table, resolutions, offsets)
         ctx.table_rows = table.shape[0]
         return load_extension().grid_encode_forward(positions, table.contiguous(), resolutions, offsets)
 
     @staticmethod
     def backward(ctx, grad_features: Tensor):
-        positions, resolutions, offsets = ctx.saved_tensors
-        grad_table = None
+        positions, table, resolutions, offsets = ctx.saved_tensors
+        grad_positions = grad_table = None
         if ctx.needs_input_grad[1]:
             grad_table = load_extension().grid_encode_backward(
                 grad_features.contiguous(), positions, resolutions, offsets, ctx.table_rows
             )
-        return None, grad_table, None, None
+        if ctx.needs_input_grad[0]:  # camera pose refinement: the samples move with the ray
+            grad_positions = _grid_encode_position_gradient(positions, table, resolutions, offsets, grad_features)
+        return grad_positions, grad_table, None, None
+
+
+def _grid_encode_position_gradient(
+    positions: Tensor, table: Tensor, resolutions: Tensor, offsets: Tensor, grad_features: Tensor
+) -> Tensor:
+    """The gradient of the grid features with respect to the positions, through the torch twin
+    (grid_sample differentiates its sampling positions): only runs whose positions require grad, which
+    only a refined camera pose makes them, pay for it; the kernel differentiates the table alone."""
+    with torch.enable_grad():
+        moving = positions.detach().requires_grad_()
+        features = grid_encode_reference(moving, table.detach(), resolutions, offsets)
+        (gradient,) = torch.autograd.grad(features, moving, grad_features.to(features.dtype))
+    return gradient.to(positions.dtype)
 
 
 def grid_encode(positions: Tensor, table: Tensor, resolutions: Tensor, offsets: Tensor) -> Tensor:
@@ -35,7 +51,8 @@ def grid_encode(positions: Tensor, table: Tensor, resolutions: Tensor, offsets: 
     positions: [M, 3] in [-1, 1] (outside: clamped to the border); table: [V, F], the levels one
     after another, vertex (x, y, z) of level l at row offsets[l] + (z R + y) R + x with
     R = resolutions[l] and position -1 + 2 (x, y, z) / (R - 1); resolutions, offsets: [L] int64.
-    Returns [M, L * F], level-major. Differentiable with respect to `table` only.
+    Returns [M, L * F], level-major. Differentiable with respect to `table` (the kernel) and to
+    `positions` (the torch twin, only when they require grad: camera pose refinement).
     """
     return _GridEncode.apply(positions, table, resolutions, offsets)
 

@@ -91,6 +91,11 @@ class Backbone(torch.nn.Module):
             at one rate).
         paper_backbone: which of the paper's backbones this one reproduces, "NeRF" or "3DGS";
             `mono-hdr bench` compares it with the paper's figures of that row (None: no row).
+        differentiable_pose: whether `render_ldr_features` passes gradients to `camera.c2w`, which
+            camera pose refinement (`--camera-opt`, core.camera_optimizer) needs: a backbone that
+            builds its rays with `camera.rays()` or projects with `camera.w2c` in torch gets it for
+            free; one whose renderer takes the pose as a constant sets False, and refinement then
+            stays off (3DGS's C++ projection moves the world instead of the camera: backbones.gs.model).
 
     A backbone whose parameter shapes change while training (3DGS densification) overrides
     torch's `_load_from_state_dict` to take a checkpoint's shapes, so resuming just works.
@@ -102,6 +107,7 @@ class Backbone(torch.nn.Module):
     config_class: ClassVar[type]
     loss_kind: ClassVar[Literal["l1_dssim", "mse"]] = "l1_dssim"
     paper_backbone: ClassVar[str | None] = None
+    differentiable_pose: ClassVar[bool] = True
     pixel_batch: int | None = None  # a backbone may set these per instance (NeRF: from its config)
     render_chunk: int | None = None
     converter_lr: float = OFFICIAL_CONVERTER_LR

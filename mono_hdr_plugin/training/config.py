@@ -8,14 +8,15 @@ from typing import Annotated, Any, ClassVar
 
 import tyro
 
-from mono_hdr_plugin.core.configs import config_from_dict
+from mono_hdr_plugin.core.camera_optimizer import CameraOptConfig
+from mono_hdr_plugin.core.configs import ABSENT_IN_SAVED_CONFIG, config_from_dict
 from mono_hdr_plugin.core.exposure import ExposureConfig
 from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.methods.base import METHODS, MethodConfig, method_config_for
 
-TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer")
+TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer", "refined_poses.json")
 """What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
 
 
@@ -27,6 +28,10 @@ class TrainConfig:
     data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DataConfig)
     hdr: Annotated[MethodConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=MethodConfig)
     exposure: Annotated[ExposureConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ExposureConfig)
+    camera: Annotated[CameraOptConfig, tyro.conf.OmitArgPrefixes] = field(
+        default_factory=CameraOptConfig,
+        metadata={ABSENT_IN_SAVED_CONFIG: CameraOptConfig(camera_opt="off")},  # runs before it refined nothing
+    )
     preset: str | None = None
     """Start from a named preset of the backbone (listed by `mono-hdr backbones`; default: its
     first); other flags override it."""

@@ -18,6 +18,7 @@ from torch import nn
 
 from mono_hdr_plugin.core.backbone import Backbone, LdrFeatures, SceneInfo
 from mono_hdr_plugin.core.calibration import RadianceCalibration
+from mono_hdr_plugin.core.camera_optimizer import PoseCorrections
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
@@ -30,7 +31,7 @@ from mono_hdr_plugin.methods.base import (
     build_method,
 )
 
-OWNERS = ("backbone", "method", "exposures")
+OWNERS = ("backbone", "method", "exposures", "poses")
 
 
 class RenderCancelled(Exception):
@@ -58,17 +59,24 @@ class Frame:
 class Pipeline(nn.Module):
     """`backbone` renders per-primitive LDR features; `method` lifts them to HDR and scores them;
     `exposures` (optional, mono_hdr_plugin.core.exposure) gives each training view its own exposure;
+    `poses` (optional, mono_hdr_plugin.core.camera_optimizer) refines each training view's pose;
     `calibration` sets the absolute level of every rendered HDR image (core.calibration; fitted by
     training.calibration, saved with the model as its extra state)."""
 
     def __init__(
-        self, backbone_name: str, backbone: Backbone, method: HdrMethod, exposures: ViewExposures | None = None
+        self,
+        backbone_name: str,
+        backbone: Backbone,
+        method: HdrMethod,
+        exposures: ViewExposures | None = None,
+        poses: PoseCorrections | None = None,
     ):
         super().__init__()
         self.backbone_name = backbone_name
         self.backbone = backbone
         self.method = method
         self.exposures = exposures
+        self.poses = poses
         self.calibration = RadianceCalibration()
 
     @classmethod
@@ -79,6 +87,7 @@ class Pipeline(nn.Module):
         method_config: MethodConfig,
         scene: SceneInfo,
         exposures: ViewExposures | None = None,
+        poses: PoseCorrections | None = None,
     ) -> "Pipeline":
         """A fresh pipeline: the registered backbone `backbone_name` and the method the config names."""
         backbone_class = get_backbone(backbone_name)
@@ -88,7 +97,8 @@ class Pipeline(nn.Module):
         if method_config.hdr_log_weight is None:
             weight = UNBOUNDED_HDR_LOG_WEIGHT if scene.unbounded else 0.0
             method_config = dataclasses.replace(method_config, hdr_log_weight=weight)
-        return cls(backbone_name, backbone, build_method(method_config, backbone_class.loss_kind), exposures)
+        method = build_method(method_config, backbone_class.loss_kind)
+        return cls(backbone_name, backbone, method, exposures, poses)
 
     @property
     def method_name(self) -> str:
@@ -128,11 +138,13 @@ class Pipeline(nn.Module):
 
     def learning_rate(self, group: dict, step: int) -> float:
         """The learning rate of an optimiser group (from `parameter_groups`) at `step`."""
-        owner: Backbone | HdrMethod | ViewExposures = getattr(self, group["owner"])
+        owner: Backbone | HdrMethod | ViewExposures | PoseCorrections = getattr(self, group["owner"])
         return owner.learning_rate(group["name"], step, group["base_lr"])
 
     def set_run_length(self, steps: int) -> None:
         self.backbone.set_run_length(steps)
+        if self.poses is not None:
+            self.poses.run_length = steps
 
     def set_image_scale(self, scale: float) -> None:
         self.backbone.set_image_scale(scale)
@@ -160,7 +172,10 @@ class Pipeline(nn.Module):
 
     def forward(self, camera: Camera, exposure: float, view: int | None = None) -> tuple[LdrFeatures, MethodOutput]:
         """One training render: the backbone's features (for after_step) and the method's images, at
-        training view `view`'s own (possibly learned) exposure when views have their own."""
+        training view `view`'s own (possibly learned) exposure when views have their own, from its
+        refined pose when poses are refined."""
+        if self.poses is not None and view is not None:
+            camera = self.poses.refine(camera, view)
         features = self.backbone.render_ldr_features(camera)
         return features, self._lift(features, exposure, view, training=True)
 
@@ -169,7 +184,18 @@ class Pipeline(nn.Module):
         return {**self.method.losses(output, targets, step), **self.backbone.regularisation()}
 
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
+        self.check_pose_gradient()
         self.backbone.after_step(step, features, optimizer)
+
+    def check_pose_gradient(self) -> None:
+        """Refuse a step that left every pose correction without a gradient: a backbone that renders the
+        pose as a constant but declares `differentiable_pose` would keep them at zero without a word."""
+        if self.poses is not None and all(p.grad is None for p in self.poses.corrections):
+            raise RuntimeError(
+                f"--camera-opt: the backbone {self.backbone_name!r} gave no gradient to the camera pose, so "
+                "poses cannot be refined; pass --camera-opt off, or set differentiable_pose = False on the "
+                "backbone class (core/backbone.py says what it means)"
+            )
 
     # ----------------------------------------------------------------- rendering
     def camera_chunks(self, camera: Camera) -> list[Camera]:

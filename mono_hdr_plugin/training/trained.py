@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
+from mono_hdr_plugin.core.camera_optimizer import PoseCorrections
 from mono_hdr_plugin.core.exposure import ViewExposures
 from mono_hdr_plugin.core.registry import get_backbone
 from mono_hdr_plugin.data.dataset import SceneData
@@ -73,6 +74,7 @@ def load_trained_model(
         config.hdr,
         scene.scene_info(),
         ViewExposures.from_state_dict(payload["pipeline"]),
+        PoseCorrections.from_state_dict(payload["pipeline"]),
     )
     pipeline.set_run_length(payload["run_length"])
     try:

@@ -61,6 +61,7 @@ from mono_hdr_plugin.training.hooks import (
     interrupt_requests,
 )
 from mono_hdr_plugin.training.pipeline import Pipeline
+from mono_hdr_plugin.training.poses import check_resumed_refinement, run_pose_corrections, write_refined_poses
 from mono_hdr_plugin.training.pyramid import ImagePyramid, automatic_levels
 from mono_hdr_plugin.training.resume import (
     DATA_FLAGS,
@@ -105,6 +106,7 @@ class Trainer:
             method_config,
             scene.scene_info(),
             build_view_exposures(config.exposure, scene),
+            run_pose_corrections(config.camera, scene, backbone_name),
         )
         self.prior_response = camera_response(scene, self.pipeline.exposures) if prior_weight else None
         """The response L_prior linearises photos with (None: no prior in this run)."""
@@ -300,6 +302,7 @@ class Trainer:
                 self.save()
             if self.pipeline.exposures is not None:
                 write_json(config.out / "learned_exposures.json", self.pipeline.exposures.report())
+            write_refined_poses(self.pipeline, self.scene, config.out, self.step, config.quiet)
         try:
             metrics = self.evaluate(save_renders=config.save_renders)
             write_json(config.out / "metrics.json", metrics)
@@ -392,6 +395,7 @@ class Trainer:
         """Load model, converters, optimiser and RNG state from a checkpoint payload, after checking
         that it is this run's: same backbone, method and data (ResumeMismatch names what differs)."""
         changed = self._check_resumable(payload)
+        check_resumed_refinement(payload, self.pipeline, self.checkpoint_path())
         try:
             self.pipeline.load_state_dict(payload["pipeline"])
             for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):

@@ -9,6 +9,7 @@ from mono_hdr_plugin.apps.studio.capture import capture, inverse_response_curve
 from mono_hdr_plugin.apps.studio.render import SceneRender, render_scene
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
+from mono_hdr_plugin.core.camera_optimizer import EXACT
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot, bounds_from_points, constant
 from mono_hdr_plugin.data.errors import DatasetError
@@ -102,6 +103,7 @@ def studio_captured_scene(scene: StudioScene, seed: int = 0) -> CapturedScene:
         point_colors=colours,
         metadata={
             "source": "studio",
+            "poses": EXACT,
             "effects": scene.effects,
             "exposures": scene.exposures,
             "unbounded": unbounded,

@@ -16,10 +16,11 @@ import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
+from mono_hdr_plugin.core.camera_optimizer import EXACT, STRUCTURE_FROM_MOTION
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.validation import ANY_FINITE, Rule, numeric
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.io import check_readable
+from mono_hdr_plugin.data.io import check_readable, write_json
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 UNKNOWN_EXPOSURE = 1.0
@@ -27,6 +28,9 @@ UNKNOWN_EXPOSURE = 1.0
 exposures); the reader names it in the scene's metadata["unknown_exposures"] for the trainer to learn."""
 MAX_NAME_BYTES = 255
 """Longest file or folder name common file systems allow."""
+POSE_SOURCE_FILE = "pose_source.json"
+"""Written beside a layout's poses when they are exact (`mono-hdr synth`); without it, the poses of a
+COLMAP or LLFF folder are taken to come from structure from motion."""
 
 
 def natural_key(name: str) -> list:
@@ -172,3 +176,22 @@ def split_view_exposure(name: str) -> tuple[str, int] | None:
     """`<view>_<e>.<ext>` -> (view, e), or None for any other file name."""
     match = re.fullmatch(r"(.+)_([0-9]{1,9})\.[A-Za-z]+", name)
     return (match.group(1), int(match.group(2))) if match else None
+
+
+def read_pose_source(folder: Path) -> str:
+    """Where a COLMAP or LLFF folder's poses come from (scene.metadata["poses"], which decides
+    `--camera-opt auto`): exact where the studio wrote them (POSE_SOURCE_FILE), else structure from motion."""
+    path = folder / POSE_SOURCE_FILE
+    if not path.is_file():
+        return STRUCTURE_FROM_MOTION
+    poses = json_object(load_json(path, f'write {{"poses": "{EXACT}"}} or delete it'), str(path)).get("poses")
+    if poses not in (EXACT, STRUCTURE_FROM_MOTION):
+        raise DatasetError(f'{path}: "poses" must be "{EXACT}" or "{STRUCTURE_FROM_MOTION}", got {shown(poses)}')
+    return poses
+
+
+def write_pose_source(metadata: dict, folder: Path) -> None:
+    """Mark a written COLMAP or LLFF folder's poses as exact when the scene's are (the studio's), so
+    reading it back does not refine them."""
+    if metadata.get("poses") == EXACT:
+        write_json(folder / POSE_SOURCE_FILE, {"poses": EXACT})

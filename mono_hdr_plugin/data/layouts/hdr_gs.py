@@ -50,7 +50,9 @@ from mono_hdr_plugin.data.layouts.common import (
     load_json,
     natural_key,
     point_colours_u8,
+    read_pose_source,
     split_view_exposure,
+    write_pose_source,
 )
 
 SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
@@ -343,6 +345,7 @@ def read(folder: Path) -> CapturedScene:
         metadata={
             "source": str(folder),
             "layout": "hdr-gs",
+            "poses": read_pose_source(folder),
             "unknown_exposures": exposures.unknown,
             "camera_response": response,
             "camera_response_source": response_source,
@@ -393,6 +396,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
             exposures[name] = shot.exposure
     write_json(folder / EXPOSURES_FILE, exposures)
     _write_model(scene, folder / MODEL_FOLDER)
+    write_pose_source(scene.metadata, folder)
 
 
 @register_layout("hdr-gs")

@@ -22,7 +22,9 @@ from mono_hdr_plugin.data.layouts.common import (
     check_one_size,
     image_size,
     natural_key,
+    read_pose_source,
     split_view_exposure,
+    write_pose_source,
 )
 from mono_hdr_plugin.data.layouts.llff import (
     EXPOSURES_POSES_FILE,
@@ -96,7 +98,7 @@ def read(folder: Path) -> CapturedScene:
         views=views,
         bounds_min=bounds_min,
         bounds_max=bounds_max,
-        metadata={"source": str(folder), "layout": "hdr-nerf-real"},
+        metadata={"source": str(folder), "layout": "hdr-nerf-real", "poses": read_pose_source(folder)},
     )
 
 
@@ -112,6 +114,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
     rows = np.array([row for _, row in sorted(entries)])
     with atomic_path(folder / POSES_FILE) as temporary, open(temporary, "wb") as handle:
         np.save(handle, rows)
+    write_pose_source(scene.metadata, folder)
 
 
 @register_layout("hdr-nerf-real")

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from mono_hdr_plugin.core.camera_optimizer import EXACT
 from mono_hdr_plugin.core.cameras import OPENGL_TO_OPENCV, Camera, focal_from_fov
 from mono_hdr_plugin.core.validation import POSITIVE, between
 from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, ImageFile, Shot, bounds_from_cameras
@@ -171,6 +172,7 @@ def read(folder: Path) -> CapturedScene:
         metadata={
             "source": str(folder),
             "layout": "hdr-nerf-synthetic",
+            "poses": EXACT,  # Blender's cameras, as rendered
             "unbounded": max(scale_train, scale_test) > 1,
         },
     )

@@ -31,6 +31,8 @@ from mono_hdr_plugin.data.layouts.common import (
     check_finite,
     check_one_size,
     image_size,
+    read_pose_source,
+    write_pose_source,
 )
 
 POSES_FILE = "poses_bounds.npy"
@@ -185,7 +187,12 @@ def read(folder: Path) -> CapturedScene:
         views=views,
         bounds_min=bounds_min,
         bounds_max=bounds_max,
-        metadata={"source": str(folder), "layout": "llff", "unknown_exposures": names},
+        metadata={
+            "source": str(folder),
+            "layout": "llff",
+            "unknown_exposures": names,
+            "poses": read_pose_source(folder),
+        },
     )
 
 
@@ -197,6 +204,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
     for index, view in enumerate(scene.views):
         write_png(folder / IMAGE_FOLDER / f"{index:03d}.png", view.shots[len(view.shots) // 2].image(), bits=bits)
         rows.append(llff_row(view.camera))
+    write_pose_source(scene.metadata, folder)
     with atomic_path(folder / POSES_FILE) as temporary, open(temporary, "wb") as handle:
         np.save(handle, np.array(rows))
 

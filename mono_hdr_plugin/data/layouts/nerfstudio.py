@@ -50,6 +50,8 @@ from mono_hdr_plugin.data.layouts.common import (
     load_json,
     natural_key,
     point_colours_u8,
+    read_pose_source,
+    write_pose_source,
 )
 from mono_hdr_plugin.data.undistortion import undistorted_source
 
@@ -277,6 +279,7 @@ def read(folder: Path) -> CapturedScene:
             "layout": "nerfstudio",
             "unknown_exposures": paths,
             "applied_transform": applied,
+            "poses": read_pose_source(folder),
         },
     )
 
@@ -318,6 +321,7 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
         write_ply_vertices(folder / POINTS_FILE, vertices)
         extra["ply_file_path"] = POINTS_FILE
     header = {"camera_model": "PINHOLE", **({} if per_frame else shared)}
+    write_pose_source(scene.metadata, folder)
     write_json(
         folder / TRANSFORMS_FILE,
         {**header, **extra, "train_filenames": splits["train"], "test_filenames": splits["test"], "frames": frames},
