@@ -106,14 +106,7 @@ def print_report(report: ProcessReport, console: Console) -> None:
             f"video {video.source}: kept {video.kept} of {video.candidates} candidate frames "
             f"({video.fps:g} per second, the sharpest of each three, blurred ones dropped)"
         )
-    tried = ", ".join(f"{attempt.mapper} {attempt.placed}" for attempt in report.mapper_attempts)
-    console.print(
-        f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching, "
-        f"{report.mapper} mapper{f'; placed by each: {tried}' if len(report.mapper_attempts) > 1 else ''}), "
-        f"{report.num_points} points, mean reprojection error {report.mean_reprojection_error:.3f} px"
-    )
-    if report.gps_rms_m is not None:
-        console.print(f"camera positions against the photos' GPS: {report.gps_rms_m:.1f} m RMS after a similarity fit")
+    _print_placement(report, console)
     exposures = (
         "exposures unknown (learned in training)"
         if report.exposure_range is None
@@ -145,3 +138,15 @@ def print_report(report: ProcessReport, console: Console) -> None:
     if report.failed:
         console.print(f"[red]left out (not placed):[/red] {', '.join(report.failed)}")
     console.print(f"next: mono-hdr train gs --data {report.out} --out outputs/{report.out.name}")
+
+
+def _print_placement(report: ProcessReport, console: Console) -> None:
+    """Photos placed, by which mapper (and what each one tried placed), points, error, the GPS check."""
+    tried = ", ".join(f"{attempt.mapper} {attempt.placed}" for attempt in report.mapper_attempts)
+    console.print(
+        f"placed {len(report.registered)} / {len(report.photos)} photos ({report.matcher} matching, "
+        f"{report.mapper} mapper{f'; placed by each: {tried}' if len(report.mapper_attempts) > 1 else ''}), "
+        f"{report.num_points} points, mean reprojection error {report.mean_reprojection_error:.3f} px"
+    )
+    if report.gps_rms_m is not None:
+        console.print(f"camera positions against the photos' GPS: {report.gps_rms_m:.1f} m RMS after a similarity fit")
