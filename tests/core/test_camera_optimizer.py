@@ -141,7 +141,12 @@ class TestAutoDefault:
 
         folder = tmp_path / "data"
         write_layout(studio_captured_scene(get_scene("demo")), folder, layout)
-        config = quiet_config(GaussianConfig(random_init_points=200), tmp_path / "run", max_steps=2)
+        config = quiet_config(
+            GaussianConfig(random_init_points=200),
+            tmp_path / "run",
+            max_steps=2,
+            camera=CameraOptConfig(camera_opt="auto"),
+        )
         config.data = DataConfig(data=folder)
         assert Trainer(config, "gs", load_scene(config.data)).pipeline.poses is None
         (folder / POSE_SOURCE_FILE).unlink()
