@@ -16,7 +16,7 @@ from mono_hdr_plugin.apps.camera_paths import PathKind, camera_path
 from mono_hdr_plugin.apps.display import OUTPUTS, Output, needs_render_at, to_display, to_uint8
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.validation import ANY_FINITE, NON_NEGATIVE, POSITIVE, FlagError, at_least
-from mono_hdr_plugin.data.dataset import SceneData
+from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import atomic_path, write_exr, write_png
 from mono_hdr_plugin.training.evaluation import first_per_camera, save_hdr_renders
 from mono_hdr_plugin.training.pipeline import Frame
@@ -29,7 +29,8 @@ console = Console(stderr=True)
 class RenderConfig:
     """Render a checkpoint: test views (EXR, PNGs), a camera-path video (--path) or an exposure sweep (--sweep).
 
-    Test views: <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png in OUT."""
+    Test views: <view>_hdr.exr, <view>_hdr_mulaw.png, <view>_ldr_<t>s.png and <view>_ev_sheet.png
+    (the held-out photo beside the render at --sheet-evs stops from its exposure) in OUT."""
 
     checkpoint: Path
     """A checkpoint written by `mono-hdr train`."""
@@ -41,6 +42,9 @@ class RenderConfig:
     so other exposures are shown as the HDR render through the sRGB display curve."""
     max_views: int | None = None
     """Test views: render at most this many."""
+    sheet_evs: tuple[float, ...] = (-4.0, -2.0, 0.0, 2.0, 4.0)
+    """Test views: the stops, from each view's own exposure, of its EV sheet (the photo, then the
+    render at each; EV 0 is the photo's exposure). --sheet-evs with no value: no sheet."""
     path: PathKind | None = None
     """Render a camera path instead of the test views: dataset (the split's cameras), interpolate
     (a glide through them), spiral (around the scene's focus point)."""
@@ -81,6 +85,7 @@ class RenderConfig:
         "view": NON_NEGATIVE,
         "ev_min": ANY_FINITE,
         "ev_max": ANY_FINITE,
+        "sheet_evs": ANY_FINITE,
     }
 
 
@@ -101,6 +106,7 @@ VIDEO_SUFFIXES = (".mp4", ".mkv", ".mov")
 FLAG_RENDERS = {
     "exposures": ("views",),
     "max_views": ("views",),
+    "sheet_evs": ("views",),
     "frames": ("path", "sweep"),
     "split": ("path", "sweep"),
     "video": ("path", "sweep"),
@@ -146,7 +152,9 @@ def check_render_flags(config: RenderConfig) -> None:
 def render_command(config: RenderConfig) -> None:
     """`mono-hdr render` with flags check_render_flags accepted."""
     if config.path is None and not config.sweep:
-        written = render_checkpoint(config.checkpoint, config.out, config.exposures, config.max_views)
+        written = render_checkpoint(
+            config.checkpoint, config.out, config.exposures, config.max_views, sheet_evs=config.sheet_evs
+        )
         console.print(f"wrote {len(written)} images to {config.out}")
         return
     model = load_trained_model(config.checkpoint)
@@ -269,23 +277,38 @@ def render_exposure_sweep(
             images.append(image)
             progress.advance(task)
     write_video(video, images, fps)
-    write_png(strip, exposure_strip(images, evs).astype(np.float32) / 255.0)
+    write_png(strip, labelled_strip(images, [ev_labels(ev) for ev in evs]).astype(np.float32) / 255.0)
     return images
 
 
-def exposure_strip(images: list[np.ndarray], evs: list[float], label_height: int = 14) -> np.ndarray:
-    """uint8 [H + label, N * (W + gap) - gap, 3]: the frames in a row, each labelled `EV +2` beneath
-    (`+2` where the frame is too narrow for the whole label)."""
+def ev_labels(ev: float) -> tuple[str, ...]:
+    """A frame's label, longest first: `EV +2`, else `+2` where the frame is too narrow."""
+    return (f"EV {ev:+g}", f"{ev:+g}")
+
+
+def labelled_strip(images: list[np.ndarray], labels: list[tuple[str, ...]], label_height: int = 14) -> np.ndarray:
+    """uint8 [H + label, N * (W + gap) - gap, 3]: the frames in a row, each with the longest of its
+    labels that fits beneath it (the last one where none does)."""
     height, width = images[0].shape[:2]
     gap = 2
     canvas = Image.new("RGB", (len(images) * (width + gap) - gap, height + label_height), (255, 255, 255))
     draw, font = ImageDraw.Draw(canvas), ImageFont.load_default()
-    for index, (image, ev) in enumerate(zip(images, evs, strict=True)):
+    for index, (image, choices) in enumerate(zip(images, labels, strict=True)):
         left = index * (width + gap)
         canvas.paste(Image.fromarray(image), (left, 0))
-        label = f"EV {ev:+g}" if draw.textlength(f"EV {ev:+g}", font=font) <= width - 2 else f"{ev:+g}"
+        label = next((text for text in choices if draw.textlength(text, font=font) <= width - 2), choices[-1])
         draw.text((left + width / 2, height + label_height / 2), label, fill=(0, 0, 0), font=font, anchor="mm")
     return np.asarray(canvas)
+
+
+def ev_sheet(model: TrainedModel, view: View, evs: tuple[float, ...]) -> np.ndarray:
+    """uint8 strip: held-out `view`'s photo, then the model's render of its camera at each of `evs`
+    stops from the photo's own exposure (so the EV 0 frame is the model's version of the photo)."""
+    images, frame = [to_uint8(view.image)], None
+    for ev in evs:
+        frame, image = display_frame(model, view.camera, "ldr", view.exposure * 2.0**ev, cached=frame)
+        images.append(image)
+    return labelled_strip(images, [("photo",), *(ev_labels(ev) for ev in evs)])
 
 
 @torch.no_grad()
@@ -295,9 +318,11 @@ def render_checkpoint(
     exposures: tuple[float, ...] = (),
     max_views: int | None = None,
     scene: SceneData | None = None,
+    sheet_evs: tuple[float, ...] = (),
 ) -> list[Path]:
-    """Write <view>_hdr.exr, <view>_hdr_mulaw.png and <view>_ldr_<t>s.png for each test view
-    of the checkpoint's own data (or of `scene`, an in-memory scene)."""
+    """Write <view>_hdr.exr, <view>_hdr_mulaw.png, <view>_ldr_<t>s.png and, with `sheet_evs`,
+    <view>_ev_sheet.png (`ev_sheet`) for each test view of the checkpoint's own data (or of
+    `scene`, an in-memory scene)."""
     for exposure in exposures:
         if not exposure > 0:
             raise ValueError(f"--exposures must be positive seconds, got {exposure}")
@@ -311,4 +336,7 @@ def render_checkpoint(
             frame, ldr = display_frame(model, view.camera, "ldr", exposure, cached=frame)
             written.append(out / f"{view.stem}_ldr_{exposure:g}s.png")
             write_png(written[-1], ldr.astype(np.float32) / 255.0)
+        if sheet_evs:
+            written.append(out / f"{view.stem}_ev_sheet.png")
+            write_png(written[-1], ev_sheet(model, view, sheet_evs).astype(np.float32) / 255.0)
     return written

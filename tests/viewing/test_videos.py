@@ -7,7 +7,7 @@ import register_backbone  # noqa: F401 - registers voxel-grid for the command li
 
 from mono_hdr_plugin.apps.camera_paths import camera_path
 from mono_hdr_plugin.apps.cli import main
-from mono_hdr_plugin.apps.render import even_sized, render_exposure_sweep, render_path
+from mono_hdr_plugin.apps.render import ev_sheet, even_sized, render_exposure_sweep, render_path
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.io import read_exr, read_image
 from mono_hdr_plugin.data.loading import load_scene
@@ -133,3 +133,36 @@ class TestRenderCommand:
             main(["render", "--checkpoint", str(checkpoint), "--path", "spiral", "--sweep"])
         with pytest.raises(ValueError, match="--view 99"):
             main(["render", "--checkpoint", str(checkpoint), "--sweep", "--view", "99"])
+
+
+class TestEvSheet:
+    def test_photo_then_renders_at_the_views_own_exposure(self, voxel_crf):
+        view = voxel_crf.scene.test[0]
+        sheet = ev_sheet(voxel_crf, view, (-2.0, 0.0, 2.0))
+        height, width = view.camera.height, view.camera.width
+        assert sheet.shape == (height + 14, 4 * (width + 2) - 2, 3)
+        np.testing.assert_array_equal(sheet[:height, :width], np.round(view.image.numpy() * 255))
+        # The baseline's learned response renders any exposure: the +2 tile is the view at 4x its time.
+        expected = voxel_crf.pipeline.render(view.camera, view.exposure * 4.0).ldr.clamp(0, 1).numpy()
+        tile = sheet[:height, 3 * (width + 2) : 3 * (width + 2) + width].astype(int)
+        assert np.abs(tile - np.round(expected * 255).astype(int)).max() <= 1
+
+    def test_brightness_rises_with_ev(self, voxel_mono):
+        view = voxel_mono.scene.test[0]
+        sheet = ev_sheet(voxel_mono, view, (-4.0, -2.0, 0.0, 2.0, 4.0))
+        width, height = view.camera.width, view.camera.height
+        means = [float(sheet[:height, i * (width + 2) : i * (width + 2) + width].mean()) for i in range(1, 6)]
+        assert all(b > a for a, b in zip(means, means[1:])), means
+
+    def test_command_writes_one_sheet_per_test_camera_unless_told_not_to(self, checkpoint, demo, tmp_path):
+        main(["render", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "a"), "--max-views", "2"])
+        sheets = sorted((tmp_path / "a").glob("*_ev_sheet.png"))
+        assert len(sheets) == 2
+        width = demo.test[0].camera.width
+        assert read_image(sheets[0]).shape[1] == 6 * (width + 2) - 2  # the photo and EV -4, -2, 0, +2, +4
+        main(
+            ["render", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "b"), "--max-views", "1", "--sheet-evs"]
+        )
+        assert not list((tmp_path / "b").glob("*_ev_sheet.png"))
+        with pytest.raises(ValueError, match=r"--sheet-evs applies to test-view renders \(no --path or --sweep\) only"):
+            main(["render", "--checkpoint", str(checkpoint), "--sweep", "--sheet-evs", "1"])
