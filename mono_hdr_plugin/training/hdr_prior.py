@@ -52,8 +52,9 @@ def response_name(scene: SceneData) -> str:
     return f"the camera response {scene.metadata.get('camera_response_source', 'of the capture')}"
 
 
-def prior_radiance(photo: Tensor, response: Tensor, relative_exposure: float) -> Tensor:
-    """f^-1(photo) / (t / t_ref): the radiance a photo [..., 3] records, at the reference view's exposure."""
+def prior_radiance(photo: Tensor, response: Tensor, relative_exposure: float | Tensor) -> Tensor:
+    """f^-1(photo) / (t / t_ref): the radiance a photo [..., 3] records, at the reference view's exposure
+    (`relative_exposure` [3] where white balance is learned: its gains divided out too)."""
     return decode(photo, response) / relative_exposure
 
 
