@@ -27,8 +27,7 @@ from torch import Tensor, nn
 class ViewWhiteBalance(nn.Module):
     """Per training view: three log gains, learned from 0, with zero mean over channels and views.
 
-    correction: one [3] tensor per view (one tensor each, so Adam leaves the views a step does not
-    see alone); pull_weight: the L2 pull toward the mean balance; names: the views' file names.
+    correction: one [3] tensor per view; pull_weight: the L2 pull toward the mean balance; names: the views' file names.
     """
 
     def __init__(self, views: int, learning_rate: float, pull_weight: float, names: list[str] | None = None):
@@ -44,17 +43,13 @@ class ViewWhiteBalance(nn.Module):
         views = sum(1 for key in state if key.startswith(f"{prefix}correction."))
         return cls(views, 0.0, 0.0) if views else None
 
-    def _centre(self) -> Tensor:
-        """[3] the mean log gains over views, held constant in a step: the gauge moves every view's
-        gains, but a view's gradient only reaches its own (a mean with gradient would give every
-        view an Adam step on every step, a random walk for the views not rendered)."""
-        return torch.stack(list(self.correction)).detach().mean(0)
-
     def log_gains(self, view: int | None) -> Tensor:
         """[3] the log gains of training view `view`; zeros (the mean balance) for any other view."""
         if view is None:
             return torch.zeros(3, device=self.correction[0].device)
-        value = self.correction[view] - self._centre()
+        # The gauge as a projection, with its gradient: what every view would gain alike (a cast the
+        # scene can carry) reaches no view, so it neither drifts nor swamps Adam's step size.
+        value = self.correction[view] - torch.stack(list(self.correction)).mean(0)
         return value - value.mean()
 
     def gains(self) -> Tensor:
