@@ -134,7 +134,7 @@ def evaluate(
     metrics["hdr_basis"] = pipeline.calibration.basis
     metrics["test_views"] = len({v.view_id for v in views})
     metrics["ldr_exposure_fitted"] = sum(view.name in fitted for view in views)
-    for key in (*HDR_KEYS, *RADIANCE_KEYS, *(APPEARANCE_KEYS if fitting.appearance else ()), "lpips_ldr", "lpips_hdr"):
+    for key in (*HDR_KEYS, *RADIANCE_KEYS, "lpips_ldr", "lpips_hdr"):
         values = [row[key] for row in rows if key in row and not math.isnan(row[key])]  # NaN: no pixel to score
         metrics[key] = _mean(values) if values else None
     peaks = [row["hdr_peak_ratio"] for row in rows if "hdr_peak_ratio" in row]
@@ -227,23 +227,25 @@ def _score_view(
 
 def _summarise_rows(pipeline: Pipeline, scene: SceneData, rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The run's names and the LDR figures: per exposure the mean of its views, the headline the mean
-    over the training exposures (over every exposure when none of them was evaluated)."""
+    over the training exposures (over every exposure when none of them was evaluated); the appearance
+    protocol's the same way where it ran (views too narrow for its SSIM left out)."""
     exposures = sorted({row["exposure"] for row in rows})
     train_exposures = set(scene.train_exposures)
     headline = [e for e in exposures if e in train_exposures] or exposures
-    by_exposure = {
-        key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
-        for key in ("ldr_psnr", "ldr_ssim")
-    }
-    return {
-        "backbone": pipeline.backbone_name,
-        "method": pipeline.method_name,
-        "scene": scene.name,
-        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
-        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
-        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
-        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
-    }
+    keys = ("ldr_psnr", "ldr_ssim", *(key for key in APPEARANCE_KEYS if key in rows[0]))
+
+    def mean_of(key: str, exposure: float) -> float:
+        values = [row[key] for row in rows if row["exposure"] == exposure and not math.isnan(row[key])]
+        return _mean(values)
+
+    by_exposure = {key: {e: mean_of(key, e) for e in exposures} for key in keys}
+    summary: dict[str, Any] = {"backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name}
+    for key in keys:
+        value = _mean([by_exposure[key][e] for e in headline if not math.isnan(by_exposure[key][e])])
+        summary[key] = None if math.isnan(value) and key in APPEARANCE_KEYS else value
+    for key in ("ldr_psnr", "ldr_ssim"):
+        summary[f"{key}_per_exposure"] = {f"{e:g}": value for e, value in by_exposure[key].items()}
+    return summary
 
 
 def _mean(values: list[float]) -> float:
