@@ -23,7 +23,7 @@ differ or are learned. The learned values are written to OUT/learned_exposures.j
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -31,6 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from mono_hdr_plugin.core.colour import decode_curve
+from mono_hdr_plugin.core.configs import ABSENT_IN_SAVED_CONFIG
 from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE
 from mono_hdr_plugin.core.white_balance import ViewWhiteBalance
 
@@ -53,7 +54,10 @@ class ExposureConfig:
     lr x sqrt(steps), and a start that is off by up to e^(lr x steps) is still corrected. How far
     each rate let good exposures drift: docs/own_photos.md, "Exposure per view in training"."""
 
-    learn_white_balance: Literal["auto", "on", "off"] = "auto"
+    learn_white_balance: Literal["auto", "on", "off"] = field(
+        default="auto",
+        metadata={ABSENT_IN_SAVED_CONFIG: "off"},  # runs before it learned no gains
+    )
     """Learn three gains per training view (core.white_balance), applied with the exposure. auto: on
     where exposures are learned, or the photos' EXIF says the camera balanced white itself (process-
     data records it); off for the studio and the paper's datasets, whose photos share one balance."""

@@ -195,6 +195,11 @@ class TestBuild:
         module = build_view_exposures(ExposureConfig(), FakeScene([0.5, 1.0], auto_white_balance=["000_0.png"]))
         assert module.white_balance is not None and not module.learned  # EXIF times: exposures stay
 
+    def test_a_run_saved_before_white_balance_learned_none(self):
+        from mono_hdr_plugin.core.configs import config_from_dict
+
+        assert config_from_dict(ExposureConfig, {"learn_exposure": None}).learn_white_balance == "off"
+
     def test_flags(self):
         config = ExposureConfig(learn_white_balance="on", white_balance_lr=0.02, white_balance_pull=0.3)
         module = build_view_exposures(config, FakeScene([0.5, 0.5]))
