@@ -60,7 +60,8 @@ def prior_radiance(photo: Tensor, response: Tensor, relative_exposure: float | T
 
 def hdr_basis(scene: SceneData, hdr_views: list[bool] | None, exposures: ViewExposures | None) -> str:
     """What ties a run's HDR to radiance: the HDR ground-truth views it trains on, else the camera
-    response (and the exposure ratios across views, where they vary or are learned)."""
+    response (and the exposure ratios across views, where they vary or are learned, and the white
+    balance, where it is learned)."""
     count = sum(ground_truth_views(scene, hdr_views))
     if count:
         return f"{count} HDR ground-truth view{'s' if count != 1 else ''}"
@@ -71,4 +72,6 @@ def hdr_basis(scene: SceneData, hdr_views: list[bool] | None, exposures: ViewExp
         basis += f"; exposure ratios across views, learned ({known})"
     elif len({round(math.log(t), 6) for t in times}) > 1:
         basis += f"; exposure ratios across views ({min(times):g}-{max(times):g} s)"
+    if exposures is not None and exposures.white_balance is not None:
+        basis += "; white balance per view, learned (the HDR keeps the photos' mean balance)"
     return basis

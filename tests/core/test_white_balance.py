@@ -21,6 +21,7 @@ from mono_hdr_plugin.core.exposure import (
 )
 from mono_hdr_plugin.core.white_balance import ViewWhiteBalance, split_log_scales
 from mono_hdr_plugin.training.appearance import APPEARANCE_PROTOCOL, appearance_fitted_scores
+from mono_hdr_plugin.training.hdr_prior import hdr_basis
 from mono_hdr_plugin.training.pipeline import Frame
 
 SRGB = torch.from_numpy(srgb_response()).float()
@@ -299,6 +300,8 @@ class TestTraining:
         report = json.loads((tmp_path / "learned_exposures.json").read_text())
         np.testing.assert_allclose(report["white_balance"]["views"][trainer.scene.train[1].name], gains[1], rtol=1e-6)
         assert metrics["appearance_protocol"] == APPEARANCE_PROTOCOL
+        basis = hdr_basis(trainer.scene, [False] * 4, trainer.pipeline.exposures)  # as without HDR views
+        assert basis.endswith("; white balance per view, learned (the HDR keeps the photos' mean balance)")
         assert metrics["ldr_psnr_appearance_fitted"] == pytest.approx(
             np.mean([row["ldr_psnr_appearance_fitted"] for row in metrics["views"]])
         )
