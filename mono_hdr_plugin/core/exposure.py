@@ -22,15 +22,18 @@ differ or are learned. The learned values are written to OUT/learned_exposures.j
 """
 
 import math
-from dataclasses import dataclass
-from typing import ClassVar
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from mono_hdr_plugin.core.colour import decode_curve
-from mono_hdr_plugin.core.validation import POSITIVE
+from mono_hdr_plugin.core.configs import ABSENT_IN_SAVED_CONFIG
+from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE
+from mono_hdr_plugin.core.white_balance import ViewWhiteBalance
 
 RESPONSE_LEVELS = 256
 FIT_RANGE_STOPS = 10.0
@@ -51,7 +54,29 @@ class ExposureConfig:
     lr x sqrt(steps), and a start that is off by up to e^(lr x steps) is still corrected. How far
     each rate let good exposures drift: docs/own_photos.md, "Exposure per view in training"."""
 
-    flag_rules: ClassVar = {"exposure_lr": POSITIVE}
+    learn_white_balance: Literal["auto", "on", "off"] = field(
+        default="auto",
+        metadata={ABSENT_IN_SAVED_CONFIG: "off"},  # runs before it learned no gains
+    )
+    """Learn three gains per training view (core.white_balance), applied with the exposure. auto: on
+    where exposures are learned, or the photos' EXIF says the camera balanced white itself (process-
+    data records it); off for the studio and the paper's datasets, whose photos share one balance."""
+    white_balance_lr: float = 0.001
+    """Adam learning rate of the learned log gains (as --exposure-lr: about this much a step)."""
+    white_balance_pull: float = 1e-4
+    """Weight of the L2 pull of each view's log gains toward the mean balance of the views: weak, so
+    it decides only for a view whose photo says little (at 0.01 it held a toy scene's gains at a tenth
+    of their true size: tests/core/test_white_balance.py)."""
+    eval_appearance: Literal["auto", "on", "off"] = "auto"
+    """Also score held-out views with their appearance fitted: exposure and white balance fitted on
+    the left half of the photo, PSNR/SSIM on the right half (metrics.json `appearance_protocol`).
+    auto: on when the run learns exposure or white balance (the held-out views' are then unknown)."""
+
+    flag_rules: ClassVar = {
+        "exposure_lr": POSITIVE,
+        "white_balance_lr": POSITIVE,
+        "white_balance_pull": NON_NEGATIVE,
+    }
 
 
 def srgb_response() -> np.ndarray:
@@ -81,6 +106,29 @@ def encode(linear: Tensor, response: Tensor) -> Tensor:
     return torch.stack(codes, -1).clamp(0.0, 1.0)
 
 
+def brighten(ldr: Tensor, log_scale: Tensor, response: Tensor) -> Tensor:
+    """The photo a camera with `response` takes with exp(log_scale) times the light of the one that
+    gave `ldr` (one scale, or [3] per channel: exposure times white balance gains)."""
+    return encode(decode(ldr, response) * torch.exp(log_scale), response)
+
+
+def fit_log_relative(ldr: Tensor, image: Tensor, response: Tensor) -> Tensor:
+    """The brightness (log relative exposure) that makes the reference-exposure `ldr` best match
+    `image` (mean squared error, golden-section search): for views whose exposure is unknown."""
+    return golden_section(lambda value: torch.mean((brighten(ldr, value, response) - image) ** 2), torch.zeros(()))
+
+
+def fit_log_scales(ldr: Tensor, image: Tensor, response: Tensor) -> Tensor:
+    """[3] the per-channel brightness (log exposure plus log gain) that makes the reference-exposure
+    `ldr` best match `image`: a held-out view's exposure and white balance. The response acts on
+    each channel alone, so each channel's scale is its own one-dimensional search."""
+
+    def error(values: Tensor) -> Tensor:
+        return torch.mean(((brighten(ldr, values, response) - image) ** 2).reshape(-1, 3), 0)
+
+    return golden_section(error, torch.zeros(3))
+
+
 class ViewExposures(nn.Module):
     """Per training view: log exposure relative to the reference view, a starting value plus a learned correction.
 
@@ -105,6 +153,7 @@ class ViewExposures(nn.Module):
         learning_rate: float = 0.01,
         names: list[str] | None = None,
         known: bool = True,
+        white_balance: ViewWhiteBalance | None = None,
     ):
         super().__init__()
         self.register_buffer("initial_log", initial_log.float())
@@ -117,6 +166,7 @@ class ViewExposures(nn.Module):
         self.lr = learning_rate
         self.names = names or [str(i) for i in range(len(initial_log))]
         self.known = known  # whether the data gave exposure times (else t_ref is a placeholder)
+        self.white_balance = white_balance
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Tensor], prefix: str = "exposures.") -> "ViewExposures | None":
@@ -124,12 +174,23 @@ class ViewExposures(nn.Module):
         if f"{prefix}initial_log" not in state:
             return None
         return cls(
-            torch.zeros_like(state[f"{prefix}initial_log"]), 0, 1.0, state[f"{prefix}response"].numpy(), learn=False
+            torch.zeros_like(state[f"{prefix}initial_log"]),
+            0,
+            1.0,
+            state[f"{prefix}response"].numpy(),
+            learn=False,
+            white_balance=ViewWhiteBalance.from_state_dict(state, f"{prefix}white_balance."),
         )
 
     @property
     def learned(self) -> bool:
+        """Whether the exposures are learned (the white balance, where there is one, always is)."""
         return self.correction[0].requires_grad
+
+    @property
+    def appearance_learned(self) -> bool:
+        """Whether anything of a view's appearance is learned: a held-out view's is then unknown."""
+        return self.learned or self.white_balance is not None
 
     def log_relative(self, view: int | None = None, exposure: float | None = None) -> Tensor:
         """ln(t / t_ref) of training view `view` (starting value plus learned), or of `exposure` seconds."""
@@ -146,34 +207,27 @@ class ViewExposures(nn.Module):
         with torch.no_grad():
             return torch.exp(torch.stack([self.log_relative(view) for view in range(len(self.correction))]))
 
-    def brighten(self, ldr: Tensor, log_relative: Tensor) -> Tensor:
-        """The photo a camera takes exp(log_relative) times longer than the one that gave `ldr`."""
-        return encode(decode(ldr, self.response) * torch.exp(log_relative), self.response)
+    def log_scale(self, view: int | None = None, exposure: float | None = None) -> Tensor:
+        """The log of the light a view's photo records relative to the canonical image: its log relative
+        exposure (`log_relative`), plus its [3] log gains where white balance is learned."""
+        log_relative = self.log_relative(view, exposure)
+        if self.white_balance is None:
+            return log_relative
+        return log_relative + self.white_balance.log_gains(view)
+
+    def brighten(self, ldr: Tensor, log_scale: Tensor) -> Tensor:
+        """`brighten` through this capture's response."""
+        return brighten(ldr, log_scale, self.response)
 
     def parameter_groups(self) -> list[dict]:
-        if not self.learned:
-            return []
-        return [{"name": "exposures", "params": list(self.correction), "lr": self.lr}]
+        groups = [{"name": "exposures", "params": list(self.correction), "lr": self.lr}] if self.learned else []
+        return groups + ([] if self.white_balance is None else self.white_balance.parameter_groups())
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         return base_lr
 
-    def fit_log_relative(self, ldr: Tensor, image: Tensor) -> Tensor:
-        """The brightness (log relative exposure) that makes the reference-exposure `ldr` best match
-        `image` (mean squared error, golden-section search): for views whose exposure is unknown."""
-        low, high = -FIT_RANGE_STOPS * math.log(2), FIT_RANGE_STOPS * math.log(2)
-        ratio = (math.sqrt(5) - 1) / 2
-
-        def error(value: float) -> float:
-            return float(torch.mean((self.brighten(ldr, torch.tensor(value)) - image) ** 2))
-
-        for _ in range(FIT_ITERATIONS):
-            left, right = high - ratio * (high - low), low + ratio * (high - low)
-            if error(left) < error(right):
-                high = right
-            else:
-                low = left
-        return torch.tensor((low + high) / 2)
+    def regularisation(self) -> dict[str, Tensor]:
+        return {} if self.white_balance is None else self.white_balance.regularisation()
 
     def report(self) -> dict:
         """What OUT/learned_exposures.json holds: per training view, its exposure relative to the
@@ -184,6 +238,7 @@ class ViewExposures(nn.Module):
         return {
             "reference": self.names[int(self.reference)],
             "learned": self.learned,
+            "white_balance": None if self.white_balance is None else self.white_balance.report(),
             "reference_exposure": reference_time,
             "views": {
                 name: {
@@ -194,6 +249,19 @@ class ViewExposures(nn.Module):
                 for name, value, start in zip(self.names, relative, initial)
             },
         }
+
+
+def golden_section(error: Callable[[Tensor], Tensor], start: Tensor) -> Tensor:
+    """The log scale(s) shaped like `start` that minimise `error` (one error per element, each
+    unimodal in its own scale) within FIT_RANGE_STOPS of 0, by golden-section search."""
+    low = torch.full_like(start, -FIT_RANGE_STOPS * math.log(2), dtype=torch.float64)
+    high = -low
+    ratio = (math.sqrt(5) - 1) / 2
+    for _ in range(FIT_ITERATIONS):
+        left, right = high - ratio * (high - low), low + ratio * (high - low)
+        left_better = error(left.float()) < error(right.float())
+        high, low = torch.where(left_better, right, high), torch.where(left_better, low, left)
+    return ((low + high) / 2).float()
 
 
 def choose_reference(exposures: list[float], brightness: list[float]) -> int:
@@ -265,7 +333,8 @@ def build_view_exposures(config: ExposureConfig, scene) -> ViewExposures | None:
     unknown = set(scene.metadata.get("unknown_exposures", ()))
     learn = config.learn_exposure if config.learn_exposure is not None else bool(unknown)
     exposures = [view.exposure for view in scene.train]
-    if not learn and len({round(math.log(e), 6) for e in exposures}) == 1:
+    balance = learns_white_balance(config, scene, learn)
+    if not learn and not balance and len({round(math.log(e), 6) for e in exposures}) == 1:
         return None
     reference = reference_view(scene.train)
     response = scene.metadata.get("camera_response")
@@ -284,4 +353,18 @@ def build_view_exposures(config: ExposureConfig, scene) -> ViewExposures | None:
         learning_rate=config.exposure_lr,
         names=[view.name for view in scene.train],
         known=not unknown,
+        white_balance=ViewWhiteBalance(
+            len(scene.train), config.white_balance_lr, config.white_balance_pull, [view.name for view in scene.train]
+        )
+        if balance
+        else None,
     )
+
+
+def learns_white_balance(config: ExposureConfig, scene, learn_exposure: bool) -> bool:
+    """--learn-white-balance: auto learns the gains where the exposures are learned (a capture that
+    knows neither) or where the photos' EXIF says the camera chose the white balance itself
+    (metadata["auto_white_balance"], written by process-data)."""
+    if config.learn_white_balance != "auto":
+        return config.learn_white_balance == "on"
+    return learn_exposure or bool(scene.metadata.get("auto_white_balance"))

@@ -1,6 +1,8 @@
 """Test-view metrics of a pipeline, and the EXR/PNG files a render of a view writes."""
 
+import dataclasses
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +28,13 @@ from mono_hdr_plugin.core.metrics import (
 )
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
+from mono_hdr_plugin.training.appearance import (
+    APPEARANCE_PROTOCOL,
+    appearance_fitted_scores,
+    appearance_protocol_runs,
+    match_exposure,
+    reference_exposure,
+)
 from mono_hdr_plugin.training.hdr_prior import camera_response
 from mono_hdr_plugin.training.pipeline import Frame, Pipeline
 
@@ -69,13 +78,19 @@ HDR_KEYS = (
     "hdr_psnr_unclipped",
     "clipped_fraction",
 )
+APPEARANCE_KEYS = ("ldr_psnr_appearance_fitted", "ldr_ssim_appearance_fitted")
+"""LDR scores of the appearance protocol (training.appearance): right half, appearance fitted on the left."""
 RADIANCE_KEYS = tuple(f"hdr_{score}_{c}" for score in ("rank_correlation", "log_slope") for c in CHANNELS)
 """Scores of the HDR against the test photos themselves (core.metrics.radiance_consistency): every run has them."""
 
 
 @torch.no_grad()
 def evaluate(
-    pipeline: Pipeline, scene: SceneData, max_eval_views: int | None = None, render_dir: Path | None = None
+    pipeline: Pipeline,
+    scene: SceneData,
+    max_eval_views: int | None = None,
+    render_dir: Path | None = None,
+    eval_appearance: str = "auto",
 ) -> dict[str, Any]:
     """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
 
@@ -83,7 +98,9 @@ def evaluate(
     exposure the mean of its views; HDR figures (of the calibrated HDR, `Pipeline.calibration`) are
     mu-law with both official normalisations, aligned and emitter-masked (core.metrics), the mean over
     cameras (docs/method.md). "views" lists every evaluated view's own figures.
-    With `render_dir`, each camera's renders are written there (`save_view_renders`).
+    With `render_dir`, each camera's renders are written there (`save_view_renders`). With the appearance
+    protocol (`eval_appearance`, training.appearance) every view is also scored with its exposure and
+    white balance fitted on the left half of its photo, on the right half.
     """
     views = evaluation_views(pipeline, scene, max_eval_views)
     try:
@@ -95,21 +112,23 @@ def evaluate(
     hdr_views = {id(v) for v in first if v.hdr is not None}
     # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
     fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
-    response = camera_response(scene, pipeline.exposures)
+    fitting = Fitting.of(pipeline, scene, eval_appearance)
     with pipeline.evaluating():
         rows = [
             _score_view(
                 pipeline,
                 view,
-                view.name in fitted,
+                fitting.with_exposure(view.name in fitted),
                 id(view) in hdr_views,
-                response if id(view) in cameras else None,
+                id(view) in cameras,
                 lpips_model,
                 render_dir,
             )
             for view in views
         ]
     metrics = _summarise_rows(pipeline, scene, rows)
+    if fitting.appearance:
+        metrics["appearance_protocol"] = APPEARANCE_PROTOCOL
     metrics["radiance_scale"] = pipeline.calibration.scale
     metrics["radiance_units"] = pipeline.calibration.units
     metrics["hdr_basis"] = pipeline.calibration.basis
@@ -128,22 +147,55 @@ def evaluate(
     return metrics
 
 
+@dataclass
+class Fitting:
+    """What of a test view's appearance evaluation fits to its photo, through the camera `response`.
+
+    exposure: the view's exposure is unknown (one exposure fitted on the whole photo, the "as given"
+    score); appearance: the appearance protocol runs (training.appearance). Both brighten the
+    canonical render at `reference_exposure` seconds."""
+
+    response: torch.Tensor
+    reference_exposure: float
+    appearance: bool
+    exposure: bool = False
+
+    @classmethod
+    def of(cls, pipeline: Pipeline, scene: SceneData, eval_appearance: str) -> "Fitting":
+        """The fits of `evaluate` (the exposure one is set per view, `with_exposure`)."""
+        protocol = appearance_protocol_runs(pipeline, eval_appearance)
+        return cls(camera_response(scene, pipeline.exposures), reference_exposure(pipeline, scene), protocol)
+
+    def with_exposure(self, exposure: bool) -> "Fitting":
+        return dataclasses.replace(self, exposure=exposure)
+
+    def renders_reference(self) -> bool:
+        return self.exposure or self.appearance
+
+
+def _render_view(pipeline: Pipeline, view: View, fitting: Fitting) -> tuple[Frame, Frame | None]:
+    """The view's render as scored (at its exposure, or at the one fitted to its photo) and, when a fit
+    needs it, the canonical render at the reference exposure (one render where both are that one)."""
+    reference = pipeline.render(view.camera, fitting.reference_exposure) if fitting.renders_reference() else None
+    if fitting.exposure:
+        assert reference is not None
+        return match_exposure(reference, view.image, fitting.response), reference
+    return pipeline.render(view.camera, view.exposure), reference
+
+
 def _score_view(
     pipeline: Pipeline,
     view: View,
-    fit_exposure: bool,
+    fitting: Fitting,
     score_hdr: bool,
-    response: torch.Tensor | None,
+    score_radiance: bool,
     lpips_model,
     render_dir: Path | None,
 ) -> dict[str, Any]:
-    """One view's own figures: LDR always, HDR against its ground truth (and its renders under
-    `render_dir`) when `score_hdr`, HDR against the photo linearised through `response` when given."""
-    output = (
-        pipeline.render_matching(view.camera, view.image)
-        if fit_exposure
-        else pipeline.render(view.camera, view.exposure)
-    )
+    """One view's own figures: LDR always (and appearance fitted where `fitting` says), HDR against its
+    ground truth (and its renders under `render_dir`) when `score_hdr`, HDR against the photo
+    linearised through the response when `score_radiance`."""
+    output, reference = _render_view(pipeline, view, fitting)
     ldr = output.ldr  # a Frame's LDR is clamped to [0, 1]: scored as a photo would be
     row = {
         "view": view.stem,
@@ -152,10 +204,13 @@ def _score_view(
         "ldr_psnr": psnr(ldr, view.image),
         "ldr_ssim": ssim(ldr.double(), view.image.double()).item(),
     }
+    if fitting.appearance:
+        assert reference is not None
+        row.update(appearance_fitted_scores(reference, view.image, fitting.response))
     if lpips_model is not None:
         row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
-    if response is not None:
-        row.update(radiance_consistency(output.hdr, decode(view.image, response), view.image))
+    if score_radiance:
+        row.update(radiance_consistency(output.hdr, decode(view.image, fitting.response), view.image))
     if score_hdr:
         assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
         row.update(hdr_metrics(output.hdr, view.hdr))
@@ -172,23 +227,25 @@ def _score_view(
 
 def _summarise_rows(pipeline: Pipeline, scene: SceneData, rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The run's names and the LDR figures: per exposure the mean of its views, the headline the mean
-    over the training exposures (over every exposure when none of them was evaluated)."""
+    over the training exposures (over every exposure when none of them was evaluated); the appearance
+    protocol's the same way where it ran (views too narrow for its SSIM left out)."""
     exposures = sorted({row["exposure"] for row in rows})
     train_exposures = set(scene.train_exposures)
     headline = [e for e in exposures if e in train_exposures] or exposures
-    by_exposure = {
-        key: {e: _mean([row[key] for row in rows if row["exposure"] == e]) for e in exposures}
-        for key in ("ldr_psnr", "ldr_ssim")
-    }
-    return {
-        "backbone": pipeline.backbone_name,
-        "method": pipeline.method_name,
-        "scene": scene.name,
-        "ldr_psnr": _mean([by_exposure["ldr_psnr"][e] for e in headline]),
-        "ldr_ssim": _mean([by_exposure["ldr_ssim"][e] for e in headline]),
-        "ldr_psnr_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_psnr"].items()},
-        "ldr_ssim_per_exposure": {f"{e:g}": value for e, value in by_exposure["ldr_ssim"].items()},
-    }
+    keys = ("ldr_psnr", "ldr_ssim", *(key for key in APPEARANCE_KEYS if key in rows[0]))
+
+    def mean_of(key: str, exposure: float) -> float:
+        values = [row[key] for row in rows if row["exposure"] == exposure and not math.isnan(row[key])]
+        return _mean(values)
+
+    by_exposure = {key: {e: mean_of(key, e) for e in exposures} for key in keys}
+    summary: dict[str, Any] = {"backbone": pipeline.backbone_name, "method": pipeline.method_name, "scene": scene.name}
+    for key in keys:
+        value = _mean([by_exposure[key][e] for e in headline if not math.isnan(by_exposure[key][e])])
+        summary[key] = None if math.isnan(value) and key in APPEARANCE_KEYS else value
+    for key in ("ldr_psnr", "ldr_ssim"):
+        summary[f"{key}_per_exposure"] = {f"{e:g}": value for e, value in by_exposure[key].items()}
+    return summary
 
 
 def _mean(values: list[float]) -> float:

@@ -52,14 +52,16 @@ def response_name(scene: SceneData) -> str:
     return f"the camera response {scene.metadata.get('camera_response_source', 'of the capture')}"
 
 
-def prior_radiance(photo: Tensor, response: Tensor, relative_exposure: float) -> Tensor:
-    """f^-1(photo) / (t / t_ref): the radiance a photo [..., 3] records, at the reference view's exposure."""
+def prior_radiance(photo: Tensor, response: Tensor, relative_exposure: float | Tensor) -> Tensor:
+    """f^-1(photo) / (t / t_ref): the radiance a photo [..., 3] records, at the reference view's exposure
+    (`relative_exposure` [3] where white balance is learned: its gains divided out too)."""
     return decode(photo, response) / relative_exposure
 
 
 def hdr_basis(scene: SceneData, hdr_views: list[bool] | None, exposures: ViewExposures | None) -> str:
     """What ties a run's HDR to radiance: the HDR ground-truth views it trains on, else the camera
-    response (and the exposure ratios across views, where they vary or are learned)."""
+    response (and the exposure ratios across views, where they vary or are learned, and the white
+    balance, where it is learned)."""
     count = sum(ground_truth_views(scene, hdr_views))
     if count:
         return f"{count} HDR ground-truth view{'s' if count != 1 else ''}"
@@ -70,4 +72,6 @@ def hdr_basis(scene: SceneData, hdr_views: list[bool] | None, exposures: ViewExp
         basis += f"; exposure ratios across views, learned ({known})"
     elif len({round(math.log(t), 6) for t in times}) > 1:
         basis += f"; exposure ratios across views ({min(times):g}-{max(times):g} s)"
+    if exposures is not None and exposures.white_balance is not None:
+        basis += "; white balance per view, learned (the HDR keeps the photos' mean balance)"
     return basis

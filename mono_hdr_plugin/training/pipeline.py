@@ -160,14 +160,14 @@ class Pipeline(nn.Module):
         lift = self.method.render if training else self.method
         if self.exposures is None:
             return lift(features, exposure)
-        log_relative = self.exposures.log_relative(view, exposure)
+        log_scale = self.exposures.log_scale(view, exposure)  # per channel where white balance is learned
         if self.method.renders_any_exposure:
-            return lift(features, self.exposures.reference_exposure * torch.exp(log_relative))
+            return lift(features, self.exposures.reference_exposure * torch.exp(log_scale))
         output = lift(features, exposure)
-        output.ldr = self.exposures.brighten(output.ldr, log_relative)
-        output.auxiliary_ldr = [self.exposures.brighten(aux, log_relative) for aux in output.auxiliary_ldr]
+        output.ldr = self.exposures.brighten(output.ldr, log_scale)
+        output.auxiliary_ldr = [self.exposures.brighten(aux, log_scale) for aux in output.auxiliary_ldr]
         if output.ldr_from_hdr is not None:
-            output.ldr_from_hdr = self.exposures.brighten(output.ldr_from_hdr, log_relative)
+            output.ldr_from_hdr = self.exposures.brighten(output.ldr_from_hdr, log_scale)
         return output
 
     def forward(self, camera: Camera, exposure: float, view: int | None = None) -> tuple[LdrFeatures, MethodOutput]:
@@ -180,8 +180,10 @@ class Pipeline(nn.Module):
         return features, self._lift(features, exposure, view, training=True)
 
     def losses(self, output: MethodOutput, targets: Targets, step: int) -> dict[str, torch.Tensor]:
-        """The method's loss terms and the backbone's regularisers; the training loss is their sum."""
-        return {**self.method.losses(output, targets, step), **self.backbone.regularisation()}
+        """The method's loss terms and the regularisers of backbone and white balance; the training loss
+        is their sum."""
+        terms = {**self.method.losses(output, targets, step), **self.backbone.regularisation()}
+        return terms if self.exposures is None else {**terms, **self.exposures.regularisation()}
 
     def after_step(self, step: int, features: LdrFeatures, optimizer: torch.optim.Optimizer) -> None:
         self.check_pose_gradient()
@@ -244,16 +246,6 @@ class Pipeline(nn.Module):
             alpha=image(alpha),
             exposure=exposure,
         )
-
-    @torch.no_grad()
-    def render_matching(self, camera: Camera, image: torch.Tensor) -> Frame:
-        """A whole image whose LDR is brightened to match the photo `image` [H, W, 3] as well as one
-        exposure can: for views whose exposure is unknown (needs `exposures`)."""
-        exposures = self.exposures
-        assert exposures is not None, "render_matching needs per-view exposures (Pipeline.exposures)"
-        output = self.render(camera, float(exposures.reference_exposure))
-        output.ldr = exposures.brighten(output.ldr, exposures.fit_log_relative(output.ldr, image))  # in [0, 1]
-        return output
 
     @contextlib.contextmanager
     def evaluating(self) -> Iterator["Pipeline"]:

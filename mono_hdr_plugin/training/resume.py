@@ -25,6 +25,7 @@ RESUME_FREE_FLAGS = {
     "--eval-every",
     "--checkpoint-every",
     "--max-eval-views",
+    "--eval-appearance",
     "--save-renders",
     "--nan-patience",
     "--quiet",

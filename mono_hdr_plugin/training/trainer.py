@@ -183,7 +183,7 @@ class Trainer:
         camera, targets = training_batch(view, self.backbone.pixel_batch, self.hdr_views[index], self.generator)
         if self.prior_response is not None and targets.hdr is None:
             exposures = self.pipeline.exposures
-            relative = 1.0 if exposures is None else float(torch.exp(exposures.log_relative(index)))
+            relative = 1.0 if exposures is None else torch.exp(exposures.log_scale(index)).detach()
             targets.radiance = prior_radiance(targets.ldr, self.prior_response, relative)
         return camera, targets
 
@@ -327,12 +327,9 @@ class Trainer:
         training seconds."""
         started = time.perf_counter()
         self.calibrate()
-        metrics = evaluate(
-            self.pipeline,
-            self.scene,
-            self.config.max_eval_views,
-            render_dir=self.config.out / "renders" if save_renders else None,
-        )
+        render_dir = self.config.out / "renders" if save_renders else None
+        appearance = self.config.exposure.eval_appearance
+        metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views, render_dir, appearance)
         self.evaluation_seconds.append(time.perf_counter() - started)
         return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 

@@ -2,14 +2,16 @@
 
 import json
 import math
+import shutil
 from dataclasses import replace
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import pycolmap
 import pytest
 import torch
-from helpers import quiet_config
+from helpers import quiet_config, real_photos
 from PIL import Image
 from process_data_photos import shoot, textured_scene
 
@@ -102,6 +104,17 @@ class TestProcessData:
         assert report.warnings == []  # three exposures within 2 stops: nothing to warn about
         assert sorted(p.name for p in (out / "images").iterdir()) == sorted(p.name for p in report.registered)
         assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # scratch folder removed
+
+    def test_auto_white_balance_reaches_the_trainer(self, processed, tmp_path):
+        # The simulated camera writes no WhiteBalance tag, so no white_balance.json: the studio learns no
+        # gains. With the file a camera on auto gives, the scene names the photos whose gains to learn.
+        _, out = processed
+        assert not (out / "white_balance.json").exists()
+        assert load_scene(DataConfig(data=out)).metadata["auto_white_balance"] == []
+        copy = Path(shutil.copytree(out, tmp_path / "d"))
+        names = json.loads((out / "exposures.json").read_text())
+        (copy / "white_balance.json").write_text(json.dumps(dict.fromkeys(names, "auto") | {next(iter(names)): None}))
+        assert load_scene(DataConfig(data=copy)).metadata["auto_white_balance"] == list(names)[1:]
 
     def test_pinhole_model_is_kept(self, small_shoot, tmp_path):
         report = process_data(
@@ -280,6 +293,17 @@ class TestReadExif:
         Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "a.jpg")
         with Image.open(tmp_path / "a.jpg") as image:
             assert read_exif(image) == PhotoExif()
+
+    def test_white_balance_mode(self, tmp_path):
+        for value, mode in ((0, "auto"), (1, "manual"), (None, None)):
+            path = save_jpeg(tmp_path / f"{value}.jpg", np.zeros((4, 4, 3)), white_balance=value)
+            with Image.open(path) as image:
+                assert read_exif(image).white_balance == mode
+
+    def test_the_lund_photos_say_auto_white_balance(self):
+        # A phone's photos: EXIF WhiteBalance 0 (auto), and no gains anywhere a reader can decode.
+        with Image.open(real_photos("opensfm_lund") / "images" / "01.jpg") as image:
+            assert read_exif(image).white_balance == "auto"
 
     def test_zero_exposure_counts_as_missing(self, tmp_path):
         path = save_jpeg(tmp_path / "a.jpg", np.zeros((4, 4, 3)), exposure=Fraction(0, 1))

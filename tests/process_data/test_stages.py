@@ -331,6 +331,17 @@ class TestLayoutStage:
         written = pycolmap.Reconstruction(tmp_path / "d" / "sparse" / "0")
         assert written.cameras[1].width == 20 and list(written.cameras[1].params) == [5.0, 5.0, 10.0, 7.5]
 
+    def test_white_balance_file_where_exif_has_the_mode(self, tmp_path):
+        model = pycolmap.Reconstruction()
+        model.add_camera(pycolmap.Camera.create_from_model_name(1, "PINHOLE", 10.0, 40, 30))
+        config = ProcessDataConfig(images=tmp_path, out=tmp_path / "out", test_every=2)
+        photos = [record(0, view=True, white_balance="auto"), record(1, view=True), record(2, white_balance="auto")]
+        write_metadata(config, model, photos, None, tmp_path / "d")
+        written = json.loads((tmp_path / "d" / "white_balance.json").read_text())
+        assert written == {"000_0.png": "auto", "001_0.png": None}
+        write_metadata(config, model, [record(0, view=True)], None, tmp_path / "e")
+        assert not (tmp_path / "e" / "white_balance.json").exists()
+
     def test_test_views_are_every_nth_single(self):
         photos = [record(i, view=True, bracket=0 if i == 1 else None) for i in range(6)]
         assert choose_test_views(photos, 2) == ["000_0.png", "003_0.png", "005_0.png"]  # 001 is bracketed

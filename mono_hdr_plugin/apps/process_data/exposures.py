@@ -145,6 +145,7 @@ def photo_records(
             iso=stage.exif.iso,
             f_number=stage.exif.f_number,
             raw=stage.raw,
+            white_balance=stage.exif.white_balance,
         )
         for stage, (time, origin) in zip(staged, exposures)
     ]

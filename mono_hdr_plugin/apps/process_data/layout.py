@@ -18,7 +18,13 @@ from mono_hdr_plugin.apps.process_data.report import ProcessReport
 from mono_hdr_plugin.apps.process_data.sfm import Reconstruction
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.io import write_exr, write_json, write_png
-from mono_hdr_plugin.data.layouts.hdr_gs import EXPOSURES_FILE, MODEL_FOLDER, RESPONSE_FILE, SPLITS_FILE
+from mono_hdr_plugin.data.layouts.hdr_gs import (
+    EXPOSURES_FILE,
+    MODEL_FOLDER,
+    RESPONSE_FILE,
+    SPLITS_FILE,
+    WHITE_BALANCE_FILE,
+)
 from mono_hdr_plugin.data.loading import downscale_image
 from mono_hdr_plugin.data.photos.brackets import dynamic_range_stops
 from mono_hdr_plugin.data.undistortion import PINHOLE_MODELS, pinhole_grid, remap
@@ -150,13 +156,15 @@ def write_metadata(
     dataset: Path,
     response_source: str | None = None,
 ) -> list[str]:
-    """sparse/0 (intrinsics scaled to the images), exposures.json, splits.json, camera_response.json;
-    the test views."""
+    """sparse/0 (intrinsics scaled to the images), exposures.json, white_balance.json (where EXIF has
+    the mode), splits.json, camera_response.json; the test views."""
     if config.downscale > 1:
         scale_intrinsics(model, config.downscale)
     (dataset / MODEL_FOLDER).mkdir(parents=True)
     model.write(dataset / MODEL_FOLDER)
     write_json(dataset / EXPOSURES_FILE, {photo.name: photo.exposure for photo in photos if photo.view})
+    if any(photo.white_balance for photo in photos if photo.view):
+        write_json(dataset / WHITE_BALANCE_FILE, {photo.name: photo.white_balance for photo in photos if photo.view})
     test_views = choose_test_views(photos, config.test_every)
     write_json(dataset / SPLITS_FILE, {"test": test_views})
     if response is not None:

@@ -28,6 +28,8 @@ class PhotoRecord:
     """Exposure relative to the set's darkest photo, as used by the merge (estimated when unknown)."""
     view: bool = False
     """Whether this photo is an image of the dataset."""
+    white_balance: str | None = None
+    """EXIF WhiteBalance: "auto" (the camera balanced it itself: the trainer learns its gains), "manual"."""
 
 
 @dataclass

@@ -7,6 +7,7 @@
     poses_bounds_exps.npy (real scenes)           column 17 = exposure, row 5 (id - 1) + e
     splits.json (optional)                        {"test": [image names]}: the other views train
     camera_response.json (optional)               the camera's response curve (process-data)
+    white_balance.json (optional)                 {image name: "auto", "manual" or null}: EXIF's mode (process-data)
     process_data.json (optional)                  process-data's report: HDR only at bracketed views
 
 Exposure of a photo: exposures.json if present, else the npy row, else the synthetic
@@ -59,6 +60,8 @@ SYNTHETIC_EXPOSURES = (0.125, 0.5, 2.0, 8.0, 32.0)
 EXPOSURES_FILE = "exposures.json"
 SPLITS_FILE = "splits.json"
 RESPONSE_FILE = "camera_response.json"
+WHITE_BALANCE_FILE = "white_balance.json"
+"""Written by process-data: {image name: "auto", "manual" or null}, EXIF's white balance mode."""
 REPORT_FILE = "process_data.json"
 """Written by process-data: its captures have HDR only at the bracketed viewpoints, by design."""
 POSES_FILE = "poses_bounds_exps.npy"
@@ -228,6 +231,15 @@ def _response(folder: Path) -> tuple[list | None, str | None]:
     return table.tolist(), source if isinstance(source, str) else f"of {path.name}"
 
 
+def _auto_white_balance(folder: Path) -> list[str]:
+    """The photos whose camera chose the white balance itself (white_balance.json): the trainer learns
+    their gains (core.white_balance)."""
+    path = folder / WHITE_BALANCE_FILE
+    if not path.is_file():
+        return []
+    return [name for name, mode in json_object(load_json(path, ""), str(path)).items() if mode == "auto"]
+
+
 def _test_names(folder: Path, names: list[str]) -> set[str] | None:
     """The image names splits.json holds out for testing; None without the file."""
     path = folder / SPLITS_FILE
@@ -347,6 +359,7 @@ def read(folder: Path) -> CapturedScene:
             "layout": "hdr-gs",
             "poses": read_pose_source(folder),
             "unknown_exposures": exposures.unknown,
+            "auto_white_balance": _auto_white_balance(folder),
             "camera_response": response,
             "camera_response_source": response_source,
             "partial_hdr_expected": (folder / REPORT_FILE).is_file(),

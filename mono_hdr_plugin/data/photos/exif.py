@@ -20,6 +20,9 @@ TAG_MAKE, TAG_MODEL, TAG_ORIENTATION = 0x010F, 0x0110, 0x0112
 TAG_EXPOSURE_TIME, TAG_F_NUMBER, TAG_ISO, TAG_FOCAL_35MM = 0x829A, 0x829D, 0x8827, 0xA405
 TAG_DATE_TIME_ORIGINAL, TAG_SUBSEC_TIME_ORIGINAL = 0x9003, 0x9291
 TAG_EXPOSURE_MODE = 0xA402
+TAG_WHITE_BALANCE = 0xA403
+WHITE_BALANCE_MODES = {0: "auto", 1: "manual"}
+"""EXIF WhiteBalance values: the mode only; the gains a camera applied are in its maker notes."""
 EXPOSURE_MODE_AUTO_BRACKET = 2
 """ExposureMode value a camera writes for every photo of an automatic exposure bracket."""
 DATE_FORMAT = "%Y:%m:%d %H:%M:%S"
@@ -41,6 +44,8 @@ class PhotoExif:
     """ExposureMode says the camera took this photo as part of an automatic exposure bracket."""
     gps: tuple[float, float, float] | None = None
     """(latitude, longitude in degrees, north and east positive; altitude in metres, 0 when absent)."""
+    white_balance: str | None = None
+    """WhiteBalance: "auto" (the camera balanced each photo itself) or "manual"."""
 
 
 def exif_number(value) -> float | None:
@@ -92,7 +97,8 @@ def read_gps(exif: Image.Exif) -> tuple[float, float, float] | None:
 
 
 def read_exif(image: Image.Image) -> PhotoExif:
-    """The exposure, aperture, ISO, 35 mm focal length, camera, capture time and exposure mode."""
+    """The exposure, aperture, ISO, 35 mm focal length, camera, capture time, exposure and white
+    balance modes."""
     exif = image.getexif()
     details = exif.get_ifd(EXIF_IFD)
 
@@ -109,6 +115,7 @@ def read_exif(image: Image.Image) -> PhotoExif:
         timestamp=exif_timestamp(tag(TAG_DATE_TIME_ORIGINAL), tag(TAG_SUBSEC_TIME_ORIGINAL)),
         auto_bracket=tag(TAG_EXPOSURE_MODE) == EXPOSURE_MODE_AUTO_BRACKET,
         gps=read_gps(exif),
+        white_balance=WHITE_BALANCE_MODES.get(tag(TAG_WHITE_BALANCE)),
     )
 
 
@@ -128,6 +135,7 @@ def make_exif(
     timestamp: float | None = None,
     exposure_mode: int | None = None,
     gps: tuple[float, float, float] | None = None,
+    white_balance: int | None = None,
 ) -> Image.Exif:
     """An Exif block with the given fields, as a camera writes them (pass it to Image.save(exif=...))."""
     exif = Image.Exif()
@@ -139,7 +147,8 @@ def make_exif(
     for tag, value in ((TAG_EXPOSURE_TIME, exposure), (TAG_F_NUMBER, f_number)):
         if value is not None:
             details[tag] = _rational(value)
-    for tag, number in ((TAG_ISO, iso), (TAG_FOCAL_35MM, focal_35mm), (TAG_EXPOSURE_MODE, exposure_mode)):
+    numbers = ((TAG_ISO, iso), (TAG_FOCAL_35MM, focal_35mm), (TAG_EXPOSURE_MODE, exposure_mode))
+    for tag, number in (*numbers, (TAG_WHITE_BALANCE, white_balance)):
         if number is not None:
             details[tag] = number
     if gps is not None:
