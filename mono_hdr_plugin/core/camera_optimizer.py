@@ -57,12 +57,18 @@ class CameraOptConfig:
     it decays exponentially to 1 % of this at the run's end."""
     camera_opt_weight_decay: float = 0.0
     """Adam weight decay of the corrections: a pull toward the poses as given."""
+    eval_pose: Literal["auto", "on", "off"] = "auto"
+    """Fit each held-out view's pose on the left half of its photo (with the model frozen) before the
+    held-out protocol scores the right half (BARF's protocol; docs/own_photos.md). auto: where training
+    refined its poses, which moves the model's world a little from the poses as given. The scores as
+    given (ldr_psnr) always render the given pose."""
 
     flag_rules: ClassVar = {
         "camera_opt": one_of("auto", "on", "off"),
         "camera_opt_mode": one_of("SO3xR3", "SE3"),
         "camera_opt_lr": POSITIVE,
         "camera_opt_weight_decay": NON_NEGATIVE,
+        "eval_pose": one_of("auto", "on", "off"),
     }
 
 
@@ -111,9 +117,14 @@ def pose_exp(tangent: Tensor, mode: str = "SO3xR3") -> Tensor:
 
 
 def rotation_angle_degrees(rotation: Tensor) -> float:
-    """The angle in degrees of the rotation matrix [3, 3] (0 for the identity)."""
-    cosine = ((torch.trace(rotation.double()) - 1) / 2).clamp(-1.0, 1.0)
-    return math.degrees(float(torch.arccos(cosine)))
+    """The angle in degrees of the rotation matrix [3, 3] (0 for the identity): atan2 of its sine
+    (from the skew part) and cosine (from the trace), exact near 0 where arccos of the trace alone
+    loses small angles to rounding (0.02 degrees in float32)."""
+    matrix = rotation.double()
+    skew_part = matrix - matrix.T
+    sine = torch.stack([skew_part[2, 1], skew_part[0, 2], skew_part[1, 0]]).norm() / 2
+    cosine = (torch.trace(matrix) - 1) / 2
+    return math.degrees(float(torch.atan2(sine, cosine)))
 
 
 class PoseCorrections(nn.Module):
