@@ -138,6 +138,7 @@ def command_eval(config: EvalConfig) -> None:
             run.config.max_eval_views,
             render_dir=config.out / "renders" if config.save_renders else None,
             eval_appearance=run.config.exposure.eval_appearance,
+            eval_pose=run.config.camera.eval_pose,
         )
         metrics.update(preset=run.config.preset, steps=run.step, train_seconds=run.train_seconds)
         write_json(config.out / "metrics.json", metrics)

@@ -26,12 +26,14 @@ from mono_hdr_plugin.core.metrics import (
     ssim,
     tone_mapped_pair,
 )
+from mono_hdr_plugin.core.validation import FlagError
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.data.io import write_exr, write_png
 from mono_hdr_plugin.training.appearance import (
     APPEARANCE_PROTOCOL,
     appearance_fitted_scores,
     appearance_protocol_runs,
+    fit_held_out_pose,
     match_exposure,
     reference_exposure,
 )
@@ -91,6 +93,7 @@ def evaluate(
     max_eval_views: int | None = None,
     render_dir: Path | None = None,
     eval_appearance: str = "auto",
+    eval_pose: str = "auto",
 ) -> dict[str, Any]:
     """Metrics on the test views, in eval mode: LDR at each exposure the method can render, HDR per camera.
 
@@ -100,7 +103,7 @@ def evaluate(
     cameras (docs/method.md). "views" lists every evaluated view's own figures.
     With `render_dir`, each camera's renders are written there (`save_view_renders`). With the appearance
     protocol (`eval_appearance`, training.appearance) every view is also scored with its exposure and
-    white balance fitted on the left half of its photo, on the right half.
+    white balance (and, with `eval_pose`, its pose) fitted on the left half of its photo, on the right half.
     """
     views = evaluation_views(pipeline, scene, max_eval_views)
     try:
@@ -112,7 +115,7 @@ def evaluate(
     hdr_views = {id(v) for v in first if v.hdr is not None}
     # Views of unknown exposure are rendered at the exposure that fits their photo best (one number each).
     fitted = set(scene.metadata.get("unknown_exposures", ())) if pipeline.exposures is not None else set()
-    fitting = Fitting.of(pipeline, scene, eval_appearance)
+    fitting = Fitting.of(pipeline, scene, eval_appearance, eval_pose)
     with pipeline.evaluating():
         rows = [
             _score_view(
@@ -128,7 +131,7 @@ def evaluate(
         ]
     metrics = _summarise_rows(pipeline, scene, rows)
     if fitting.appearance:
-        metrics["appearance_protocol"] = APPEARANCE_PROTOCOL
+        metrics["appearance_protocol"] = APPEARANCE_PROTOCOL + (POSE_PROTOCOL if fitting.pose else "")
     metrics["radiance_scale"] = pipeline.calibration.scale
     metrics["radiance_units"] = pipeline.calibration.units
     metrics["hdr_basis"] = pipeline.calibration.basis
@@ -152,25 +155,47 @@ class Fitting:
     """What of a test view's appearance evaluation fits to its photo, through the camera `response`.
 
     exposure: the view's exposure is unknown (one exposure fitted on the whole photo, the "as given"
-    score); appearance: the appearance protocol runs (training.appearance). Both brighten the
-    canonical render at `reference_exposure` seconds."""
+    score); appearance: the appearance protocol runs (training.appearance); pose: the appearance
+    protocol fits the view's pose too (`fit_held_out_pose`, on `scene`). All brighten the canonical
+    render at `reference_exposure` seconds."""
 
     response: torch.Tensor
     reference_exposure: float
     appearance: bool
+    pose: bool
+    scene: SceneData
     exposure: bool = False
 
     @classmethod
-    def of(cls, pipeline: Pipeline, scene: SceneData, eval_appearance: str) -> "Fitting":
+    def of(cls, pipeline: Pipeline, scene: SceneData, eval_appearance: str, eval_pose: str) -> "Fitting":
         """The fits of `evaluate` (the exposure one is set per view, `with_exposure`)."""
-        protocol = appearance_protocol_runs(pipeline, eval_appearance)
-        return cls(camera_response(scene, pipeline.exposures), reference_exposure(pipeline, scene), protocol)
+        pose = pose_fit_runs(pipeline, eval_pose)
+        protocol = pose or appearance_protocol_runs(pipeline, eval_appearance)
+        return cls(
+            camera_response(scene, pipeline.exposures), reference_exposure(pipeline, scene), protocol, pose, scene
+        )
 
     def with_exposure(self, exposure: bool) -> "Fitting":
         return dataclasses.replace(self, exposure=exposure)
 
     def renders_reference(self) -> bool:
         return self.exposure or self.appearance
+
+
+POSE_PROTOCOL = " (the pose fitted on the left half too)"
+
+
+def pose_fit_runs(pipeline: Pipeline, setting: str) -> bool:
+    """--eval-pose: on, off, or auto (on where training refined its poses and the backbone can fit one)."""
+    differentiable = pipeline.backbone.differentiable_pose
+    if setting == "on" and not differentiable:
+        raise FlagError(
+            f"--eval-pose on: the backbone {pipeline.backbone_name!r} renders without gradients to the camera "
+            "pose, so a held-out pose cannot be fitted; pass --eval-pose off"
+        )
+    if setting == "auto":
+        return pipeline.poses is not None and differentiable
+    return setting == "on"
 
 
 def _render_view(pipeline: Pipeline, view: View, fitting: Fitting) -> tuple[Frame, Frame | None]:
@@ -206,6 +231,12 @@ def _score_view(
     }
     if fitting.appearance:
         assert reference is not None
+        if fitting.pose:
+            camera, pose_change = fit_held_out_pose(
+                pipeline, fitting.scene, view.camera, view.image, fitting.response, fitting.reference_exposure
+            )
+            reference = pipeline.render(camera, fitting.reference_exposure)
+            row.update(pose_change)
         row.update(appearance_fitted_scores(reference, view.image, fitting.response))
     if lpips_model is not None:
         row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)

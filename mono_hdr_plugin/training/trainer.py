@@ -329,7 +329,9 @@ class Trainer:
         self.calibrate()
         render_dir = self.config.out / "renders" if save_renders else None
         appearance = self.config.exposure.eval_appearance
-        metrics = evaluate(self.pipeline, self.scene, self.config.max_eval_views, render_dir, appearance)
+        metrics = evaluate(
+            self.pipeline, self.scene, self.config.max_eval_views, render_dir, appearance, self.config.camera.eval_pose
+        )
         self.evaluation_seconds.append(time.perf_counter() - started)
         return {**metrics, "preset": self.config.preset, "steps": self.step, "train_seconds": self.train_seconds}
 

@@ -19,11 +19,17 @@ from mono_hdr_plugin.core.camera_optimizer import (
     PoseCorrections,
     pose_exp,
     refinement_wanted,
+    rotation_angle_degrees,
     so3_exp,
 )
 from mono_hdr_plugin.core.cameras import Camera, look_at
+from mono_hdr_plugin.core.metrics import psnr
 from mono_hdr_plugin.core.validation import FlagError
+from mono_hdr_plugin.training import appearance
+from mono_hdr_plugin.training.appearance import APPEARANCE_PROTOCOL, fit_held_out_pose
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
+from mono_hdr_plugin.training.evaluation import POSE_PROTOCOL, pose_fit_runs
+from mono_hdr_plugin.training.hdr_prior import camera_response
 from mono_hdr_plugin.training.poses import write_refined_poses
 from mono_hdr_plugin.training.resume import ResumeMismatch
 from mono_hdr_plugin.training.trained import load_trained_model
@@ -81,6 +87,22 @@ class TestPoseExp:
         assert torch.isfinite(jacobian).all()
         torch.testing.assert_close(jacobian[:3, :3, 3], torch.tensor([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]]).double())
         torch.testing.assert_close(jacobian[:3, 3, 0], torch.tensor([1.0, 0, 0]).double())
+
+
+class TestRotationAngle:
+    def test_identity(self):
+        assert rotation_angle_degrees(torch.eye(3)) == 0.0
+
+    @pytest.mark.parametrize("degrees", [1e-4, 0.05, 0.2, 37.0, 179.0])
+    def test_angle_of_a_rotation_about_any_axis(self, degrees):
+        axis = torch.tensor([0.3, -0.5, 0.8], dtype=torch.float64)
+        rotation = rodrigues(axis / axis.norm() * math.radians(degrees))
+        assert rotation_angle_degrees(rotation) == pytest.approx(degrees, abs=1e-9)
+
+    def test_small_angles_survive_float32(self):
+        """arccos of the trace alone rounds a float32 rotation below about 0.02 degrees to 0."""
+        rotation = rodrigues(torch.tensor([0.0, 0.0, math.radians(0.005)], dtype=torch.float64)).float()
+        assert rotation_angle_degrees(rotation) == pytest.approx(0.005, rel=1e-3)
 
 
 class TestPoseCorrections:
@@ -306,3 +328,78 @@ class TestRefinedPosesFile:
         torch.testing.assert_close(torch.tensor(entry["c2w_refined"]), expected)
         assert entry["rotation_degrees"] > 0
         assert not list(tmp_path.glob("run/*.tmp*"))  # written through a temporary file and renamed
+
+
+class TestHeldOutPoseFit:
+    """fit_held_out_pose (BARF's protocol): a held-out photo taken from a pose off the given one."""
+
+    offset = torch.tensor([0.01, -0.01, 0.005, 0.006, -0.004, 0.005])  # scene radii, radians: 0.5 degrees
+
+    def photo_off_the_given_pose(self, tmp_path, voxel_scene, backbone):
+        trainer = refining_trainer(tmp_path, voxel_scene, backbone)
+        view = voxel_scene.test[0]
+        camera = view.camera.scaled(4)  # 64 px: enough texture to place a camera
+        scale = voxel_scene.scene_info().extent
+        truth = dataclasses.replace(
+            camera, c2w=camera.c2w.float() @ pose_exp(torch.cat([self.offset[:3] * scale, self.offset[3:]]))
+        )
+        with trainer.pipeline.evaluating():
+            photo = trainer.pipeline.render(truth, view.exposure).ldr
+        return trainer.pipeline, camera, truth, photo, view.exposure
+
+    @pytest.mark.parametrize("backbone, render_chunk", [("gs", None), ("voxel-grid", 512)])
+    def test_finds_the_pose_the_photo_was_taken_from(self, tmp_path, voxel_scene, monkeypatch, backbone, render_chunk):
+        """voxel-grid in pieces of 512 rays takes the path of backbones that render pixel batches (NeRF):
+        a fixed subset of the left half's pixels."""
+        pipeline, camera, truth, photo, exposure = self.photo_off_the_given_pose(tmp_path, voxel_scene, backbone)
+        pipeline.backbone.render_chunk = render_chunk
+        monkeypatch.setattr(appearance, "POSE_FIT_RAYS", 1024)
+        pipeline.poses = None  # the given pose is the start
+        response = camera_response(voxel_scene, None)
+        with pipeline.evaluating():
+            fitted, change = fit_held_out_pose(pipeline, voxel_scene, camera, photo, response, exposure)
+            before = psnr(pipeline.render(camera, exposure).ldr, photo)
+            after = psnr(pipeline.render(fitted, exposure).ldr, photo)
+        error = torch.linalg.inv(truth.c2w.float()) @ fitted.c2w
+        offset_degrees = math.degrees(float(self.offset[3:].norm()))
+        assert after > before + 10
+        assert rotation_angle_degrees(error[:3, :3]) < offset_degrees  # nearer the truth than the start
+        assert change["appearance_fitted_pose_degrees"] > 0.5 * offset_degrees
+
+    def test_starts_from_the_world_motion_of_the_nearest_training_view(self, tmp_path, voxel_scene, monkeypatch):
+        pipeline, camera, _, photo, exposure = self.photo_off_the_given_pose(tmp_path, voxel_scene, "gs")
+        monkeypatch.setattr(appearance, "POSE_FIT_STEPS", 0)
+        with torch.no_grad():
+            for index, correction in enumerate(pipeline.poses.corrections):
+                correction.fill_(0.01 * (index + 1))
+        centres = torch.stack([view.camera.c2w[:3, 3] for view in voxel_scene.train])
+        nearest = int(torch.argmin((centres - camera.c2w[:3, 3]).norm(dim=-1)))
+        given = voxel_scene.train[nearest].camera.c2w.float()
+        scale = voxel_scene.scene_info().extent
+        tangent = torch.full((6,), 0.01 * (nearest + 1))
+        refined = given @ pose_exp(torch.cat([tangent[:3] * scale, tangent[3:]]))
+        world_motion = refined @ torch.linalg.inv(given)  # what refinement did to the nearest view, in the world
+        with pipeline.evaluating():
+            fitted, _ = fit_held_out_pose(
+                pipeline, voxel_scene, camera, photo, camera_response(voxel_scene, None), exposure
+            )
+        torch.testing.assert_close(fitted.c2w, world_motion @ camera.c2w.float(), atol=1e-5, rtol=0)
+
+    def test_rules(self, tmp_path, voxel_scene):
+        pipeline = refining_trainer(tmp_path, voxel_scene, "voxel-grid").pipeline
+        assert pose_fit_runs(pipeline, "auto") and not pose_fit_runs(pipeline, "off")
+        pipeline.poses = None
+        assert not pose_fit_runs(pipeline, "auto") and pose_fit_runs(pipeline, "on")
+        pipeline.backbone.differentiable_pose = False
+        assert not pose_fit_runs(pipeline, "auto")
+        with pytest.raises(FlagError, match="--eval-pose on"):
+            pose_fit_runs(pipeline, "on")
+
+    def test_a_refining_run_scores_held_out_views_with_their_poses_fitted(self, tmp_path, voxel_scene):
+        metrics = refining_trainer(tmp_path, voxel_scene, "gs", max_eval_views=2).train()
+        assert metrics["appearance_protocol"] == APPEARANCE_PROTOCOL + POSE_PROTOCOL
+        assert all(row["appearance_fitted_pose_degrees"] >= 0 for row in metrics["views"])
+        assert math.isfinite(metrics["ldr_psnr_appearance_fitted"])
+        unfitted = refining_trainer(tmp_path / "off", voxel_scene, "gs", max_eval_views=2)
+        unfitted.config.camera = dataclasses.replace(unfitted.config.camera, eval_pose="off")
+        assert "appearance_fitted_pose_degrees" not in unfitted.train()["views"][0]
