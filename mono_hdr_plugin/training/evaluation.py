@@ -106,10 +106,7 @@ def evaluate(
     white balance (and, with `eval_pose`, its pose) fitted on the left half of its photo, on the right half.
     """
     views = evaluation_views(pipeline, scene, max_eval_views)
-    try:
-        lpips_model, lpips_skipped = load_lpips(), None
-    except LpipsUnavailable as reason:
-        lpips_model, lpips_skipped = None, str(reason)
+    lpips_model, lpips_skipped = _lpips_or_reason()
     first = first_per_camera(views)
     cameras = {id(v) for v in first}
     hdr_views = {id(v) for v in first if v.hdr is not None}
@@ -148,6 +145,14 @@ def evaluate(
         metrics["lpips_skipped"] = lpips_skipped
     metrics["views"] = rows
     return metrics
+
+
+def _lpips_or_reason() -> tuple[Any, str | None]:
+    """The LPIPS model, or None and why it is unavailable (the scores are then skipped, not failed)."""
+    try:
+        return load_lpips(), None
+    except LpipsUnavailable as reason:
+        return None, str(reason)
 
 
 @dataclass
