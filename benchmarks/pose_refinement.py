@@ -4,9 +4,13 @@ Three runs of one backbone on one scene, the same steps and seed: the exact pose
 perturbed poses without refinement ("perturbed") and with it ("refined"). Each training view's pose
 is rotated by DEG degrees about a random axis through its centre and moved by FRACTION of the scene
 radius (SceneInfo.extent, the radius of the camera rig) in a random direction, seeded. Held-out views
-keep their exact poses. Written: OUT/<backbone>.json and OUT/<backbone>.md (held-out LDR and HDR PSNR,
-the share of the lost PSNR recovered, and the pose errors against the truth before and after
-refinement, after a similarity fit of all camera centres that removes the gauge freedom).
+keep their exact poses, and are scored two ways: at those poses (nerfstudio's protocol), and with
+their pose, exposure and white balance fitted on the left half of each photo and the right half
+scored (BARF's protocol, --eval-pose on: refinement may move the whole world a little, and a pose
+given in the old world is then a little off). Written: OUT/<backbone>.json and OUT/<backbone>.md
+(held-out PSNR both ways, the share of the lost PSNR recovered, and the pose errors against the truth
+before and after refinement, with the gauge freedom removed two ways: a similarity fit of the camera
+centres, and a fit of whole poses, the rotation from the cameras' orientations).
 
     python benchmarks/pose_refinement.py --backbone gs --scene demo --steps 1000 --perturb-poses 1,0.01
 """
@@ -65,13 +69,35 @@ def similarity_fit(source: torch.Tensor, target: torch.Tensor) -> tuple[float, t
     return scale, rotation, mean_t - scale * rotation @ mean_s
 
 
-def pose_errors(poses: list[torch.Tensor], truth: list[torch.Tensor], radius: float) -> dict[str, float]:
+def orientation_fit(poses: list[torch.Tensor], truth: list[torch.Tensor]) -> tuple[float, torch.Tensor, torch.Tensor]:
+    """The similarity (s, R, t) that best maps camera-to-world `poses` onto `truth` [4, 4] as whole
+    poses: R the rotation nearest the sum of R_true R_pose^T (chordal mean of the orientations), then
+    s and t fitting the centres by least squares with R fixed."""
+    total = sum(true[:3, :3] @ pose[:3, :3].T for pose, true in zip(poses, truth, strict=True))
+    u, _, vt = torch.linalg.svd(total)
+    sign = torch.ones(3, dtype=total.dtype)
+    sign[2] = torch.sign(torch.det(u @ vt))
+    rotation = u @ torch.diag(sign) @ vt
+    source = torch.stack([pose[:3, 3] for pose in poses]) @ rotation.T
+    target = torch.stack([true[:3, 3] for true in truth])
+    a, b = source - source.mean(0), target - target.mean(0)
+    scale = float((a * b).sum() / a.square().sum())
+    return scale, rotation, target.mean(0) - scale * source.mean(0)
+
+
+def pose_errors(
+    poses: list[torch.Tensor], truth: list[torch.Tensor], radius: float, gauge: str = "centres"
+) -> dict[str, float]:
     """Rotation (degrees) and centre (fraction of the scene radius) errors of camera-to-world poses
-    against the truth, after the similarity that best maps their centres onto the true ones."""
+    against the truth, after the similarity that best maps them onto the true ones: their centres
+    (gauge "centres", Umeyama) or whole poses (gauge "poses", `orientation_fit`)."""
     poses64, truth64 = [p.double() for p in poses], [t.double() for t in truth]
-    scale, rotation, translation = similarity_fit(
-        torch.stack([p[:3, 3] for p in poses64]), torch.stack([t[:3, 3] for t in truth64])
-    )
+    if gauge == "poses":
+        scale, rotation, translation = orientation_fit(poses64, truth64)
+    else:
+        scale, rotation, translation = similarity_fit(
+            torch.stack([p[:3, 3] for p in poses64]), torch.stack([t[:3, 3] for t in truth64])
+        )
     rotations, centres = [], []
     for pose, true in zip(poses64, truth64, strict=True):
         aligned_rotation = rotation @ pose[:3, :3]
@@ -99,7 +125,7 @@ def train_run(
         out=out,
         max_steps=steps,
         seed=seed,
-        camera=camera,
+        camera=dataclasses.replace(camera, eval_pose="on"),
         quiet=True,
         save_renders=False,
         checkpoint_every=10**9,
@@ -112,10 +138,13 @@ def train_run(
     return trainer, metrics
 
 
+SCORES = ("ldr_psnr", "hdr_psnr", "ldr_psnr_appearance_fitted")
+
+
 def add_share_recovered(results: dict) -> dict[str, float]:
     """The PSNR the perturbation cost (clean - perturbed), and in each refined run the share of it
-    recovered ((refined - perturbed) / lost)."""
-    lost = {key: results["clean"][key] - results["perturbed"][key] for key in ("ldr_psnr", "hdr_psnr")}
+    recovered ((refined - perturbed) / lost), for every score."""
+    lost = {key: results["clean"][key] - results["perturbed"][key] for key in SCORES}
     for row in results.values():
         if "pose_errors_refined" in row:
             row["share_recovered"] = {
@@ -142,11 +171,13 @@ def compare_runs(args: argparse.Namespace, clean: SceneData, perturbed: SceneDat
     with tempfile.TemporaryDirectory() as folder:
         for name, (scene, camera) in runs.items():
             trainer, metrics = train_run(args.backbone, scene, args.steps, args.seed, camera, Path(folder) / name)
-            row = {key: metrics[key] for key in ("ldr_psnr", "ldr_ssim", "hdr_psnr", "train_seconds", "wall_seconds")}
+            keys = (*SCORES, "ldr_ssim", "ldr_ssim_appearance_fitted", "train_seconds", "wall_seconds")
+            row = {key: metrics[key] for key in keys}
             if trainer.pipeline.poses is not None:
                 with torch.no_grad():
                     refined = [c2w.float() @ trainer.pipeline.poses.correction(i) for i, c2w in enumerate(given)]
                 row["pose_errors_refined"] = pose_errors(refined, truth, radius)
+                row["pose_errors_refined_whole_pose_fit"] = pose_errors(refined, truth, radius, "poses")
             results[name] = row
             print(name, {k: v for k, v in row.items() if not isinstance(v, dict)}, file=sys.stderr, flush=True)
     return results
@@ -188,21 +219,22 @@ def main() -> None:
         "runs": results,
         "psnr_lost": lost,
         "pose_errors_given": pose_errors(given, truth, radius),
+        "pose_errors_given_whole_pose_fit": pose_errors(given, truth, radius, "poses"),
     }
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"{args.backbone}.json", report)
     (args.out / f"{args.backbone}.md").write_text(markdown(report))
 
 
-def recovered(figures: dict) -> str:
-    """'LDR % / HDR %' of the lost PSNR a refined run recovered, '-' for the others."""
+def recovered(figures: dict, *keys: str) -> str:
+    """'a % / b %' of the lost PSNR (of each score in `keys`) a refined run recovered, '-' for the others."""
     share = figures.get("share_recovered")
-    return f"{100 * share['ldr_psnr']:.0f} % / {100 * share['hdr_psnr']:.0f} %" if share else "-"
+    return " / ".join(f"{100 * share[key]:.0f} %" for key in keys) if share else "-"
 
 
 def markdown(report: dict) -> str:
     """The report as a Markdown table with its command."""
-    runs, given = report["runs"], report["pose_errors_given"]
+    runs = report["runs"]
     lines = [
         f"# Pose refinement: {report['backbone']} on {report['scene']}, {report['steps']} steps",
         "",
@@ -213,33 +245,46 @@ def markdown(report: dict) -> str:
         f"({report['perturbation']['scene_radius']:.3f}), {report['train_views']} training views; "
         f"held-out views ({report['test_views']}) at their exact poses.",
         "",
-        "Held-out PSNR in dB, the views at their exact poses (nerfstudio's protocol: test views are not refined).",
+        "Held-out PSNR in dB: at the exact poses (nerfstudio's protocol: test views are not refined), and on the "
+        "right half of each photo with its pose, exposure and white balance fitted on the left half (BARF's "
+        "protocol, the same for every run).",
         "",
-        "| run | LDR PSNR | HDR PSNR | LDR SSIM | lost PSNR recovered (LDR / HDR) | train s |",
-        "|---|---|---|---|---|---|",
+        "| run | LDR PSNR | HDR PSNR | LDR SSIM | recovered (LDR / HDR) | LDR PSNR, pose fitted | recovered "
+        "| train s |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, row in runs.items():
         lines.append(
-            f"| {name} | {row['ldr_psnr']:.2f} | {row['hdr_psnr']:.2f} | {row['ldr_ssim']:.4f} | {recovered(row)} | "
-            f"{row['train_seconds']:.0f} |"
+            f"| {name} | {row['ldr_psnr']:.2f} | {row['hdr_psnr']:.2f} | {row['ldr_ssim']:.4f} | "
+            f"{recovered(row, 'ldr_psnr', 'hdr_psnr')} | {row['ldr_psnr_appearance_fitted']:.2f} | "
+            f"{recovered(row, 'ldr_psnr_appearance_fitted')} | {row['train_seconds']:.0f} |"
         )
     lost = report["psnr_lost"]
     lines += [
         "",
-        f"Lost to the perturbation: LDR {lost['ldr_psnr']:.2f} dB, HDR {lost['hdr_psnr']:.2f} dB.",
+        f"Lost to the perturbation: LDR {lost['ldr_psnr']:.2f} dB, HDR {lost['hdr_psnr']:.2f} dB at the exact poses; "
+        f"LDR {lost['ldr_psnr_appearance_fitted']:.2f} dB with the poses fitted.",
         "",
-        "Pose errors against the truth, after a similarity fit of the camera centres (gauge):",
+        "Pose errors against the truth, with the gauge removed by a similarity fit of the camera centres, or of "
+        "whole poses (the rotation from the cameras' orientations):",
         "",
-        "| poses | rotation mean (deg) | median | max | centre mean (radius) | max |",
-        "|---|---|---|---|---|---|",
+        "| poses | gauge fit | rotation mean (deg) | median | max | centre mean (radius) | max |",
+        "|---|---|---|---|---|---|---|",
     ]
-    refined = [(name, row["pose_errors_refined"]) for name, row in runs.items() if "pose_errors_refined" in row]
-    for name, errors in [("given (perturbed)", given), *refined]:
-        lines.append(
-            f"| {name} | {errors['rotation_degrees_mean']:.3f} | {errors['rotation_degrees_median']:.3f} | "
-            f"{errors['rotation_degrees_max']:.3f} | {errors['translation_radius_mean']:.4f} | "
-            f"{errors['translation_radius_max']:.4f} |"
-        )
+    rows = [("given (perturbed)", report["pose_errors_given"], report["pose_errors_given_whole_pose_fit"])]
+    rows += [
+        (name, row["pose_errors_refined"], row["pose_errors_refined_whole_pose_fit"])
+        for name, row in runs.items()
+        if "pose_errors_refined" in row
+    ]
+    for name, centres, whole in rows:
+        for gauge, errors in (("centres", centres), ("whole poses", whole)):
+            lines.append(
+                f"| {name} | {gauge} | {errors['rotation_degrees_mean']:.3f} | "
+                f"{errors['rotation_degrees_median']:.3f} | {errors['rotation_degrees_max']:.3f} | "
+                f"{errors['translation_radius_mean']:.4f} | "
+                f"{errors['translation_radius_max']:.4f} |"
+            )
     return "\n".join(lines) + "\n"
 
 

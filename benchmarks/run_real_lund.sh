@@ -1,9 +1,15 @@
 #!/usr/bin/env bash
 # Issue 45: opensfm_lund (29 phone photos down a street, auto exposure, EXIF and GPS; third-party
 # data read in place from shared/data/real beside the project) from folder to a trained model.
-# process-data, then Mono-HDR-GS for SECONDS seconds at half size (516 x 385) with camera pose
-# refinement on and off; held-out views are every 8th photo. Finished runs are kept (the script
-# resumes). Run with nothing else on the machine:
+# process-data, then Mono-HDR-GS for SECONDS seconds at half size (516 x 385), held-out views every
+# 8th photo, each scored as given and with the held-out protocol (appearance fitted on the left half
+# of the photo, scored on the right half: docs/own_photos.md):
+#   baseline       no per-view white balance, no pose refinement (exposures learned, as EXIF allows)
+#   white-balance  three gains per view learned with the model
+#   camera-opt     white balance and pose refinement (--camera-opt-lr 1e-3)
+#   nerf           Mono-HDR-NeRF with white balance
+#   hdr-gs         the HDR-GS baseline with white balance
+# Finished runs are kept (the script resumes). Run with nothing else on the machine:
 #   bash benchmarks/run_real_lund.sh [OUT] [SECONDS]
 set -euo pipefail
 export MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=17179869184
@@ -18,11 +24,19 @@ if [ ! -f "$scratch/data/process_data.json" ]; then
     echo "{\"process_data_seconds\": $(echo "$(date +%s.%N) - $start" | bc)}" > "$out/process_data_time.json"
 fi
 cp "$scratch/data/process_data.json" "$out/process_data.json"
-for opt in on off; do
-    [ -f "$out/camera-opt-$opt/metrics.json" ] && continue
-    mono-hdr train gs --data "$scratch/data" --downscale 2 --max-seconds "$seconds" --camera-opt "$opt" \
-        --seed 0 --quiet --out "$scratch/camera-opt-$opt" --overwrite
-    mkdir -p "$out/camera-opt-$opt"
-    cp "$scratch/camera-opt-$opt"/*.json "$out/camera-opt-$opt/"
+declare -A flags=(
+    [baseline]="gs --learn-white-balance off --camera-opt off"
+    [white-balance]="gs --learn-white-balance on --camera-opt off"
+    [camera-opt]="gs --learn-white-balance on --camera-opt on --camera-opt-lr 1e-3"
+    [nerf]="nerf --learn-white-balance on --camera-opt off"
+    [hdr-gs]="gs --method hdr-gs --learn-white-balance on --camera-opt off"
+)
+for run in ${RUNS:-baseline white-balance camera-opt nerf hdr-gs}; do
+    [ -f "$out/$run/metrics.json" ] && continue
+    # shellcheck disable=SC2086
+    mono-hdr train ${flags[$run]} --data "$scratch/data" --downscale 2 --max-seconds "$seconds" \
+        --eval-appearance on --seed 0 --quiet --out "$scratch/$run" --overwrite
+    mkdir -p "$out/$run"
+    cp "$scratch/$run"/*.json "$out/$run/"
 done
 python benchmarks/real_photos.py --out "$out"
