@@ -11,6 +11,7 @@ import torch
 from mono_hdr_plugin.core.exposure import decode
 from mono_hdr_plugin.core.metrics import (
     CHANNELS,
+    OWN_LDR_PREFIX,
     LpipsUnavailable,
     chroma_outliers,
     clipped_split_metrics,
@@ -82,8 +83,14 @@ HDR_KEYS = (
 )
 APPEARANCE_KEYS = ("ldr_psnr_appearance_fitted", "ldr_ssim_appearance_fitted")
 """LDR scores of the appearance protocol (training.appearance): right half, appearance fitted on the left."""
-RADIANCE_KEYS = tuple(f"hdr_{score}_{c}" for score in ("rank_correlation", "log_slope") for c in CHANNELS)
-"""Scores of the HDR against the test photos themselves (core.metrics.radiance_consistency): every run has them."""
+RADIANCE_KEYS = tuple(
+    f"{prefix}{score}_{c}"
+    for prefix in ("hdr_", OWN_LDR_PREFIX)
+    for score in ("rank_correlation", "log_slope")
+    for c in CHANNELS
+)
+"""Scores of the HDR against the test photos themselves and against the model's own LDR renders of them
+(core.metrics.radiance_consistency): every run has them."""
 
 
 @torch.no_grad()
@@ -247,6 +254,7 @@ def _score_view(
         row["lpips_ldr"] = lpips_distance(lpips_model, ldr, view.image)
     if score_radiance:
         row.update(radiance_consistency(output.hdr, decode(view.image, fitting.response), view.image))
+        row.update(radiance_consistency(output.hdr, decode(ldr, fitting.response), ldr, OWN_LDR_PREFIX))
     if score_hdr:
         assert view.hdr is not None  # score_hdr is set only for views with a ground-truth HDR
         row.update(hdr_metrics(output.hdr, view.hdr))

@@ -45,7 +45,12 @@ HDR_KEYS = (
     "hdr_psnr_unclipped",
     "clipped_fraction",
 )
-RADIANCE_KEYS = tuple(f"hdr_{score}_{c}" for score in ("rank_correlation", "log_slope") for c in "rgb")
+RADIANCE_KEYS = tuple(
+    f"{against}{score}_{c}"
+    for against in ("hdr_", "hdr_own_ldr_")
+    for score in ("rank_correlation", "log_slope")
+    for c in "rgb"
+)
 
 
 def mu_law(x: np.ndarray) -> np.ndarray:
@@ -176,7 +181,8 @@ def assert_rows(
         assert row["view"] == view.stem
         assert all(type(row[key]) is float for key in want), "figures must be plain floats (JSON)"
         scores = {k for k in row if k not in ("view", "view_id", "exposure", "ldr_psnr", "ldr_ssim", "lpips_ldr")}
-        # the scores against the photo itself (RADIANCE_KEYS) need no ground truth: tests/core/test_hdr_prior.py
+        # the scores against the photo and the model's own LDR (RADIANCE_KEYS) need no ground truth:
+        # tests/core/test_hdr_prior.py
         assert scores - {"lpips_hdr", *RADIANCE_KEYS} == (set(HDR_KEYS) if scored else set()), row["view"]
         for key, value in want.items():
             assert row[key] == pytest.approx(value, rel=2e-5, abs=1e-6, nan_ok=True), (row["view"], key)

@@ -14,7 +14,12 @@ from mono_hdr_plugin.apps.studio.dataset import capture_response
 from mono_hdr_plugin.apps.studio.scenes import SCENES
 from mono_hdr_plugin.core.exposure import srgb_response
 from mono_hdr_plugin.core.losses import log_ratio_loss
-from mono_hdr_plugin.core.metrics import clipped_split_metrics, radiance_consistency, radiance_warnings
+from mono_hdr_plugin.core.metrics import (
+    OWN_LDR_PREFIX,
+    clipped_split_metrics,
+    radiance_consistency,
+    radiance_warnings,
+)
 from mono_hdr_plugin.methods.base import HDR_PRIOR_WEIGHT, MethodConfig, MethodOutput, Targets, build_method
 from mono_hdr_plugin.training.calibration import fit_radiance_calibration
 from mono_hdr_plugin.training.config import train_config_for
@@ -130,6 +135,7 @@ class TestRadianceConsistency:
         assert root["hdr_log_slope_g"] == pytest.approx(0.5)
         assert radiance_warnings(scores) == []
         assert len(radiance_warnings(root)) == 3 and "power 0.500" in radiance_warnings(root)[0]
+        assert "the test photos" in radiance_warnings(root)[0]
 
     def test_an_inverted_channel_is_found(self):
         photo, linear = self.scene()
@@ -138,7 +144,7 @@ class TestRadianceConsistency:
         scores = radiance_consistency(hdr, linear, photo)
         assert scores["hdr_rank_correlation_b"] == pytest.approx(-1.0) and scores["hdr_rank_correlation_r"] > 0.999
         warnings = radiance_warnings(scores)
-        assert any("b channel follows the photo with rank correlation -1.000" in w for w in warnings)
+        assert any("b channel has rank correlation -1.000" in w for w in warnings)
 
     def test_a_constant_channel_follows_nothing(self):
         photo, linear = self.scene()
@@ -146,7 +152,28 @@ class TestRadianceConsistency:
         hdr[..., 1] = 0.3  # a dead converter: one value whatever the photo
         scores = radiance_consistency(hdr, linear, photo)
         assert scores["hdr_rank_correlation_g"] == 0.0 and scores["hdr_log_slope_g"] == 0.0
-        assert any("g channel follows the photo with rank correlation 0.000" in w for w in radiance_warnings(scores))
+        assert any("g channel has rank correlation 0.000" in w for w in radiance_warnings(scores))
+
+    def test_a_model_that_misses_the_photo_is_told_from_an_hdr_that_is_not_radiance(self):
+        photo, linear = self.scene()
+        # the model renders a blurred photo and its HDR is exactly the radiance of that render
+        blurred = (linear + torch.roll(linear, 1, 0) + torch.roll(linear, 1, 1)) / 3
+        render = (torch.round(blurred ** (1 / 2.2) * 255) / 255).clamp(0, 1)
+        scores = radiance_consistency(blurred, linear, photo)
+        scores |= radiance_consistency(blurred, blurred, render, OWN_LDR_PREFIX)
+        assert scores["hdr_rank_correlation_r"] < 0.9 and scores["hdr_log_slope_r"] < 0.9  # the regressor's error
+        assert scores["hdr_own_ldr_rank_correlation_r"] == pytest.approx(1.0)
+        assert scores["hdr_own_ldr_log_slope_r"] == pytest.approx(1.0)
+        warnings = radiance_warnings(scores)
+        assert len(warnings) == 6 and all("the model misses the photos" in w for w in warnings)
+        # an HDR that is the square root of its own render's radiance is the HDR's fault
+        scores |= radiance_consistency(blurred.sqrt(), blurred, render, OWN_LDR_PREFIX)
+        warnings = radiance_warnings(scores)
+        assert not any("the model misses the photos" in w for w in warnings)
+        assert (
+            sum("power 0.500 (radiance: 1, accepted 0.9-1.1) of the model's own LDR renders" in w for w in warnings)
+            == 3
+        )
 
     def test_clipped_and_dark_values_do_not_count(self):
         photo, linear = self.scene()
