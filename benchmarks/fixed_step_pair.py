@@ -77,7 +77,7 @@ def main() -> None:
         scene, _, px = item.partition("@")
         rows += [(backbone, scene, int(px) if px else None) for backbone in args.backbones]
     jobs = [
-        (tree, backbone, scene, resolution, args.out / side / f"{backbone}-{scene}")
+        (tree, backbone, scene, resolution, args.out.resolve() / side / f"{backbone}-{scene}")
         for backbone, scene, resolution in rows
         for side, tree in (("before", args.before.resolve()), ("after", here))
     ]
