@@ -61,6 +61,8 @@ def test_200_steps_reproduce_the_pinned_metrics(tmp_path, backbone, method):
     metrics = Trainer(config, backbone, scene).train()
     # The C++/OpenMP kernels of gs and nerf sum in an order that can differ between machines and with the
     # machine's load, even on MKL's AVX2 path (tests/conftest.py): on 2026-12-03, with other work running,
-    # gs/mono ended 9.2e-5 and nerf/hdr-gs 2.6e-6 of a PSNR from their pins. The voxel grid is plain torch.
-    tolerance = 1e-6 if backbone == "voxel-grid" else 2e-4
+    # gs/mono ended 9.2e-5 and nerf/hdr-gs 2.6e-6 of a PSNR from their pins; on 2026-12-06, on an AMD EPYC
+    # machine, quiet, gs/mono's LDR ended 1.0e-3 from it (30.1593), the same on the tree that set the pin.
+    # Fixed-order sums (issue 48) will bring this back to 1e-6. The voxel grid is plain torch.
+    tolerance = {"voxel-grid": 1e-6, "gs": 2e-3}.get(backbone, 2e-4)
     assert (metrics["hdr_psnr"], metrics["ldr_psnr"]) == pytest.approx(PINNED[(backbone, method)], rel=tolerance)
