@@ -5,6 +5,8 @@ import argparse
 import json
 from pathlib import Path
 
+from mono_hdr_plugin.training.evaluation import RADIANCE_KEYS
+
 RUN_KEYS = (
     "backbone",
     "method",
@@ -19,12 +21,7 @@ RUN_KEYS = (
     "test_views",
     "hdr_basis",
     "hdr_warnings",
-    *(
-        f"{against}{score}_{c}"
-        for against in ("hdr_", "hdr_own_ldr_")
-        for score in ("rank_correlation", "log_slope")
-        for c in "rgb"
-    ),
+    *RADIANCE_KEYS,
 )
 RUNS = ("baseline", "white-balance", "camera-opt", "nerf", "hdr-gs")
 """The runs of benchmarks/run_real_lund.sh, in the order the table lists them."""
