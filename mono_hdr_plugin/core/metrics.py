@@ -26,6 +26,8 @@ CHROMA_BOUND = 0.05
 """A pixel's colour is wrong (a coloured floater) when its chromaticity is off by more than this."""
 SSIM_SIGMA = 1.5
 SSIM_RADIUS = 5  # scikit-image: int(truncate * sigma + 0.5) with truncate = 3.5
+SSIM_WINDOW = 2 * SSIM_RADIUS + 1
+"""The fewest pixels a side SSIM (and so training, evaluation and the D-SSIM loss) can score."""
 
 
 def psnr(pred: Tensor, target: Tensor, data_range: float = 1.0) -> float:
@@ -54,8 +56,8 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
     if pred.shape != target.shape:
         raise ValueError(f"ssim: shapes differ, {tuple(pred.shape)} vs {tuple(target.shape)}")
     height, width, channels = pred.shape
-    if min(height, width) < 2 * SSIM_RADIUS + 1:
-        raise ValueError(f"ssim needs images of at least {2 * SSIM_RADIUS + 1} pixels per side, got {height}x{width}")
+    if min(height, width) < SSIM_WINDOW:
+        raise ValueError(f"ssim needs images of at least {SSIM_WINDOW} pixels per side, got {height}x{width}")
     window = _gaussian_window(pred.dtype)
     # [1, 5C, H, W]: x, y, x^2, y^2, xy filtered together by one separable depthwise convolution
     # (as groups: on the CPU that is ~10x faster than the same filter over a batch of 5C images).

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Literal
 
+from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.validation import POSITIVE, SEED, at_least, between
 
 
@@ -38,7 +39,7 @@ class DataConfig:
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
         "fixed_exposure": POSITIVE,
-        "resolution": at_least(8),
+        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
         "downscale": POSITIVE,
         "exposure_seed": SEED,
     }

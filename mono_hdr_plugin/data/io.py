@@ -13,6 +13,8 @@ silently wrong; write float32 (half=False) or scale the image instead.
 import contextlib
 import json
 import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +52,22 @@ def atomic_path(path: str | os.PathLike, durable: bool = False):
         raise OSError(os_error.errno, os_error.strerror, str(path)) from error  # named: the file being written
     finally:
         temporary.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def utf8_path(path: str | os.PathLike) -> Iterator[Path]:
+    """`path`, or where its name is not UTF-8 (POSIX accepts any bytes), a symbolic link to it under a
+    temporary UTF-8 name: COLMAP takes UTF-8 paths only. Files and folders, read or written."""
+    path = Path(path)
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        with tempfile.TemporaryDirectory(prefix="mono-hdr-link.") as folder:
+            link = Path(folder) / "link"
+            os.symlink(os.fsencode(path.absolute()), link)
+            yield link
+    else:
+        yield path
 
 
 def _fsync(path: Path) -> None:
@@ -110,16 +128,20 @@ def _png_bit_depth(path: Path) -> int | None:
 
 
 def _corrupt(path: Path, error: Exception) -> DatasetError:
+    reason = " ".join(str(error).split())  # libpng's reason ends in a newline
     return DatasetError(
-        f"{path}: cannot decode the image ({error}); the file is truncated or corrupt: copy or export it again"
+        f"{path}: cannot decode the image ({reason}); the file is truncated or corrupt: copy or export it again"
     )
 
 
 def _read_png16(path: Path) -> np.ndarray:
     import mitsuba  # libpng keeps all 16 bits; imported here because it is slow to import
 
+    stream = mitsuba.MemoryStream()  # Mitsuba takes UTF-8 paths only: Python reads the file's bytes
+    stream.write(path.read_bytes())
+    stream.seek(0)
     try:
-        pixels = np.array(mitsuba.Bitmap(str(path)))
+        pixels = np.array(mitsuba.Bitmap(stream))
     except Exception as error:
         raise _corrupt(path, error) from error
     return _to_rgb(pixels, path).astype(np.float32) / 65535.0
@@ -175,8 +197,12 @@ def write_png(path: str | os.PathLike, image: np.ndarray, bits: int = 8) -> None
         else:
             import mitsuba
 
-            bitmap = mitsuba.Bitmap(pixels, pixel_format=mitsuba.Bitmap.PixelFormat.RGB)
-            bitmap.write(str(temporary))
+            stream = mitsuba.MemoryStream()  # written by Python: Mitsuba takes UTF-8 paths only
+            mitsuba.Bitmap(pixels, pixel_format=mitsuba.Bitmap.PixelFormat.RGB).write(
+                stream, mitsuba.Bitmap.FileFormat.PNG
+            )
+            stream.seek(0)
+            temporary.write_bytes(stream.read(stream.size()))
 
 
 def _exr_rgb(channels: dict, path: Path) -> np.ndarray:
@@ -195,7 +221,7 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
 
     path = _existing(path)
     try:
-        channels = OpenEXR.File(str(path)).channels()
+        channels = OpenEXR.File(os.fsencode(path)).channels()  # bytes: any folder name the OS accepts
     except Exception as error:
         raise DatasetError(
             f"{path}: cannot read the EXR ({error}); the file is truncated or corrupt: export it again"
@@ -227,7 +253,7 @@ def write_exr(path: str | os.PathLike, image: np.ndarray, half: bool = False) ->
     pixels = np.ascontiguousarray(image, dtype=np.float16 if half else np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as temporary:
-        OpenEXR.File(header, {"RGB": pixels}).write(str(temporary))
+        OpenEXR.File(header, {"RGB": pixels}).write(os.fsencode(temporary))
 
 
 def write_ply_vertices(path: str | os.PathLike, vertices: np.ndarray) -> Path:

@@ -138,9 +138,28 @@ def warn_partial_hdr(scene: CapturedScene) -> None:
         )
 
 
-def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
-    """Apply the exposure protocol and --downscale; decode only the chosen photos."""
+def check_image_sizes(scene: CapturedScene, factor: int, min_side: int) -> None:
+    """After --downscale `factor`, every image must keep `min_side` pixels a side. Checked on the cameras
+    before a photo is decoded; the error names the smallest image and the largest factor that works."""
+    smallest = min(scene.views, key=lambda view: min(view.camera.width, view.camera.height))
+    side = min(smallest.camera.width, smallest.camera.height)
+    if side // factor >= min_side:
+        return
+    name = smallest.name or f"view {smallest.view_id}"
+    image = f"{name} of scene {scene.name!r} ({smallest.camera.width}x{smallest.camera.height})"
+    if side < min_side:
+        raise DatasetError(f"{image} is under the {min_side} pixels a side this command needs; use larger images")
+    raise FlagError(
+        f"--downscale {factor} leaves {image} under {min_side} pixel{'s' if min_side > 1 else ''} a side; "
+        f"the largest factor that works is {side // min_side}"
+    )
+
+
+def to_scene_data(scene: CapturedScene, config: DataConfig, min_side: int = 1) -> SceneData:
+    """Apply the exposure protocol and --downscale; decode only the chosen photos. `min_side`: the fewest
+    pixels a side the caller can use (training and evaluation: SSIM's window)."""
     check_flags(config)
+    check_image_sizes(scene, config.downscale, min_side)
     warn_partial_hdr(scene)
     chosen = select_shots(scene, config)
     splits: dict[str, list[View]] = {"train": [], "test": []}
@@ -163,6 +182,7 @@ def to_scene_data(scene: CapturedScene, config: DataConfig) -> SceneData:
     )
 
 
-def load_scene(config: DataConfig) -> SceneData:
-    """Load the scene `config` names under its exposure protocol: the one call trainers make."""
-    return to_scene_data(captured_scene(config), config)
+def load_scene(config: DataConfig, min_side: int = 1) -> SceneData:
+    """Load the scene `config` names under its exposure protocol: the one call trainers make (with
+    `min_side`, to_scene_data's)."""
+    return to_scene_data(captured_scene(config), config, min_side)

@@ -26,7 +26,7 @@ from torch import Tensor
 from mono_hdr_plugin.core.camera_optimizer import PoseCorrections, rotation_angle_degrees
 from mono_hdr_plugin.core.cameras import Camera
 from mono_hdr_plugin.core.exposure import brighten, fit_log_relative, fit_log_scales, reference_view
-from mono_hdr_plugin.core.metrics import SSIM_RADIUS, psnr, ssim
+from mono_hdr_plugin.core.metrics import SSIM_WINDOW, psnr, ssim
 from mono_hdr_plugin.core.white_balance import split_log_scales
 from mono_hdr_plugin.data.dataset import SceneData
 from mono_hdr_plugin.training.pipeline import Frame, Pipeline
@@ -78,7 +78,7 @@ def appearance_fitted_scores(reference: Frame, image: Tensor, response: Tensor) 
 
 def _ssim(ldr: Tensor, photo: Tensor) -> float:
     """SSIM of a half image; NaN (left out of the mean) where it is narrower than SSIM's window."""
-    if min(photo.shape[:2]) < 2 * SSIM_RADIUS + 1:
+    if min(photo.shape[:2]) < SSIM_WINDOW:
         return math.nan
     return ssim(ldr.double(), photo.double()).item()
 

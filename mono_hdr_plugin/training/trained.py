@@ -63,9 +63,10 @@ def load_trained_model(
     if data_path is not None or scene_name is not None:
         config.data = dataclasses.replace(config.data, data=data_path, scene=scene_name)
     if scene is None:
+        from mono_hdr_plugin.core.metrics import SSIM_WINDOW
         from mono_hdr_plugin.data.loading import load_scene
 
-        scene = load_scene(config.data)
+        scene = load_scene(config.data, min_side=SSIM_WINDOW)
     if data_path is not None or scene_name is not None:
         check_scored_data(payload.get("data"), scene, checkpoint, "--data" if data_path is not None else "--scene")
     pipeline = Pipeline.create(

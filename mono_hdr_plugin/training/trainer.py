@@ -486,9 +486,10 @@ def build_trainer(config: TrainConfig, backbone_name: str, scene: SceneData | No
     if config.resume:  # before the (slow) data load
         check_run_to_resume(config)
     if scene is None:
+        from mono_hdr_plugin.core.metrics import SSIM_WINDOW
         from mono_hdr_plugin.data.loading import load_scene
 
-        scene = load_scene(config.data)
+        scene = load_scene(config.data, min_side=SSIM_WINDOW)
     trainer = Trainer(config, backbone_name, scene)
     if config.resume:
         trainer.restore(load_checkpoint(trainer.checkpoint_path()))

@@ -54,9 +54,15 @@ def train_args(data: Path, out: Path, max_steps: int, *extra: str) -> list[str]:
     ]
 
 
-def run_cli(driver: Path, args: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
+def run_cli(driver: Path, args: list[str], timeout: float = 300, **env: str) -> subprocess.CompletedProcess:
+    """The command's exit status and output; `env` adds environment variables to the child's."""
     return subprocess.run(
-        [sys.executable, str(driver), *args], env=environment(), capture_output=True, text=True, timeout=timeout
+        [sys.executable, str(driver), *args],
+        env={**environment(), **env},
+        capture_output=True,
+        text=True,
+        errors="backslashreplace",  # a path that is not UTF-8 comes back as the bytes it names
+        timeout=timeout,
     )
 
 

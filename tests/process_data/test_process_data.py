@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import shutil
 from dataclasses import replace
 from fractions import Fraction
@@ -125,6 +126,16 @@ class TestProcessData:
         assert report.camera_model == "SIMPLE_PINHOLE" and (report.width, report.height) == (192, 192)
         rotation_error, position_error = camera_errors(tmp_path / "d", small_shoot.cameras)
         assert rotation_error < ROTATION_LIMIT_DEG and position_error < POSITION_LIMIT
+
+    @pytest.mark.slow
+    def test_folder_names_that_are_not_utf8(self, small_shoot, tmp_path):
+        """Photos and --out under a name POSIX accepts and UTF-8 does not: COLMAP works in a UTF-8 link."""
+        odd = tmp_path / os.fsdecode(b"caf\xe9-\xff")
+        shutil.copytree(small_shoot.folder, odd / "photos")
+        report = process_data(ProcessDataConfig(images=odd / "photos", out=odd / "dataset", num_threads=2))
+        assert len(report.registered) == len(small_shoot.names) and report.failed == []
+        assert len(load_scene(DataConfig(data=odd / "dataset")).train) > 0
+        assert sorted(path.name for path in odd.iterdir()) == ["dataset", "photos"]  # no scratch left
 
     def test_existing_out_needs_overwrite(self, processed, small_shoot):
         _, out = processed

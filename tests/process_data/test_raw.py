@@ -1,6 +1,7 @@
 """RAW photos through rawpy: linear pixels and metadata, bad files, and process-data on a RAW shoot."""
 
 import json
+import os
 from fractions import Fraction
 
 import numpy as np
@@ -47,6 +48,15 @@ class TestReadRaw:
         path.write_bytes(content)
         with pytest.raises(DatasetError, match=r"IMG_0001.CR2: LibRaw cannot read this RAW file"):
             read_raw(path)
+
+    def test_a_folder_name_that_is_not_utf8(self, tmp_path):
+        """POSIX takes any bytes in a name; LibRaw takes UTF-8 paths only, so the file is passed open."""
+        folder = tmp_path / os.fsdecode(b"caf\xe9-\xff")
+        folder.mkdir()
+        truth = smooth_image()
+        pixels, metadata = read_raw(write_dng(folder / "a.dng", truth, exposure=Fraction(1, 60)))
+        np.testing.assert_allclose(pixels[4:-4, 4:-4], truth[4:-4, 4:-4], atol=2e-3)
+        assert metadata.exposure_time == pytest.approx(1 / 60, rel=1e-6)
 
     def test_truncated_dng_names_the_file(self, tmp_path):
         path = write_dng(tmp_path / "cut.dng", smooth_image())

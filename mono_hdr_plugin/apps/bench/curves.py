@@ -17,6 +17,7 @@ from mono_hdr_plugin.apps.bench.runs import (
     parse_override,
     parse_presets,
 )
+from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import register_benchmark
 from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
 
@@ -60,7 +61,7 @@ class BenchCurvesConfig:
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
-        "resolution": at_least(8),
+        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
         "budget_seconds": POSITIVE,
         "budget_steps": at_least(1),
         "eval_points": at_least(1),

@@ -34,6 +34,7 @@ from mono_hdr_plugin.apps.bench.runs import (
     paper_backbones,
     parse_presets,
 )
+from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import get_backbone, register_benchmark
 from mono_hdr_plugin.core.validation import POSITIVE, SEED, FlagError, at_least, between
 
@@ -95,7 +96,7 @@ class BenchPaperConfig:
         "steps": at_least(1),
         "eval_points": at_least(1),
         "max_eval_views": at_least(1),
-        "resolution": at_least(8),
+        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
     }
 
     def run(self) -> dict[str, Any]:

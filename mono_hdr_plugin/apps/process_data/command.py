@@ -19,7 +19,7 @@ from mono_hdr_plugin.apps.process_data.sfm import (
     mark_registered,
     run_sfm,
 )
-from mono_hdr_plugin.data.io import write_json
+from mono_hdr_plugin.data.io import utf8_path, write_json
 from mono_hdr_plugin.data.layouts.hdr_gs import REPORT_FILE
 
 
@@ -29,8 +29,11 @@ def process_data(config: ProcessDataConfig, console: Console | None = None) -> P
     check_config(config)
     csv_table = read_exposure_csv(config.exposure_csv) if config.exposure_csv else {}
     config.out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f".{config.out.name}.", dir=config.out.parent) as scratch:
-        work, dataset = Path(scratch) / "work", Path(scratch) / "dataset"
+    with (
+        tempfile.TemporaryDirectory(prefix=f".{config.out.name}.", dir=config.out.parent) as scratch,
+        utf8_path(scratch) as reachable,  # COLMAP works in it: a UTF-8 path, whatever --out's folder is called
+    ):
+        work, dataset = reachable / "work", reachable / "dataset"
         (work / "input").mkdir(parents=True)
         report = build_dataset(config, csv_table, work, dataset, console)
         write_json(dataset / REPORT_FILE, report.to_json())

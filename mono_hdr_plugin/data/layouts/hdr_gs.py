@@ -36,7 +36,7 @@ from mono_hdr_plugin.data.captures import (
     bounds_from_points,
 )
 from mono_hdr_plugin.data.errors import DatasetError, missing
-from mono_hdr_plugin.data.io import read_exr, read_image, write_exr, write_json, write_png
+from mono_hdr_plugin.data.io import read_exr, read_image, utf8_path, write_exr, write_json, write_png
 from mono_hdr_plugin.data.layouts.base import DatasetLayout, register_layout
 from mono_hdr_plugin.data.layouts.colmap_text import check_text_model
 from mono_hdr_plugin.data.layouts.common import (
@@ -88,7 +88,8 @@ def _read_model(folder: Path):
         raise missing(model / "images.bin", "run COLMAP (or mono-hdr process-data) to create sparse/0")
     check_text_model(model)
     try:
-        return pycolmap.Reconstruction(str(model))
+        with utf8_path(model) as readable:
+            return pycolmap.Reconstruction(str(readable))
     except Exception as error:
         reason = str(error).splitlines()[0][:200] if str(error) else type(error).__name__
         raise DatasetError(f"{model}: cannot read the COLMAP model ({reason}); re-run COLMAP") from error
@@ -390,7 +391,8 @@ def _write_model(scene: CapturedScene, model_folder: Path) -> None:
         for xyz, rgb in zip(scene.points.double().numpy(), point_colours_u8(len(scene.points), scene.point_colors)):
             reconstruction.add_point3D(xyz, pycolmap.Track(), rgb)
     model_folder.mkdir(parents=True, exist_ok=True)
-    reconstruction.write(str(model_folder))
+    with utf8_path(model_folder) as writable:
+        reconstruction.write(str(writable))
 
 
 def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:

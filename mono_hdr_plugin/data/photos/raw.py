@@ -51,7 +51,7 @@ def read_raw(path: Path) -> tuple[np.ndarray, PhotoExif]:
     import rawpy
 
     try:
-        with rawpy.imread(str(path)) as raw:
+        with open(path, "rb") as file, rawpy.imread(file) as raw:  # a file: LibRaw takes UTF-8 paths only
             pixels = raw.postprocess(
                 gamma=(1, 1),
                 no_auto_bright=True,
