@@ -91,6 +91,11 @@ POSITIVE = Rule(low=0, low_open=True)
 """Rates, sizes, exposures, scales: > 0."""
 NON_NEGATIVE = at_least(0)
 """Loss weights, counts that may be zero, thresholds: >= 0."""
+LOSS_WEIGHT = between(0, 1e6)
+"""A loss term's weight: past 1e6 it drowns every other term, and soon overflows float32 (NaN steps)."""
+MAX_IMAGE_SIDE = 4096
+"""The largest studio image a side (--resolution, bench sizes): beyond, one render takes days and a
+scene tens of GB."""
 FRACTION = between(0, 1)
 SEED = between(0, 2**32 - 1)
 ANY_FINITE = Rule()

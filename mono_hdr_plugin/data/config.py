@@ -5,7 +5,7 @@ from pathlib import Path
 from typing import ClassVar, Literal
 
 from mono_hdr_plugin.core.metrics import SSIM_WINDOW
-from mono_hdr_plugin.core.validation import POSITIVE, SEED, at_least, between
+from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, SEED, between
 
 
 @dataclass
@@ -39,7 +39,7 @@ class DataConfig:
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
         "fixed_exposure": POSITIVE,
-        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
+        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
         "downscale": POSITIVE,
         "exposure_seed": SEED,
     }

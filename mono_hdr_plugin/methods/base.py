@@ -19,7 +19,7 @@ from mono_hdr_plugin.core.configs import SAVED_IN_PARENT
 from mono_hdr_plugin.core.losses import LossKind, log_ratio_loss, photometric_loss, scale_invariant_log_loss
 from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.core.registry import PluginRegistry, RegistryError
-from mono_hdr_plugin.core.validation import FRACTION, NON_NEGATIVE, POSITIVE, at_least, iter_flags
+from mono_hdr_plugin.core.validation import FRACTION, LOSS_WEIGHT, POSITIVE, at_least, iter_flags
 
 # Paper defaults of the loss weights per backbone loss kind (docs/method.md).
 DEFAULT_BETA = {"l1_dssim": 0.05, "mse": 0.01}
@@ -84,11 +84,11 @@ class MethodConfig:
 
     flag_rules: ClassVar = {
         "hidden": at_least(1),
-        "alpha": NON_NEGATIVE,
-        "hdr_scale_anchor": NON_NEGATIVE,
-        "hdr_log_weight": NON_NEGATIVE,
-        "hdr_prior_weight": NON_NEGATIVE,
-        "beta": NON_NEGATIVE,
+        "alpha": LOSS_WEIGHT,
+        "hdr_scale_anchor": LOSS_WEIGHT,
+        "hdr_log_weight": LOSS_WEIGHT,
+        "hdr_prior_weight": LOSS_WEIGHT,
+        "beta": LOSS_WEIGHT,
         "dssim_weight": FRACTION,
         "converter_lr": POSITIVE,
     }

@@ -141,9 +141,19 @@ def test_no_rule_names_a_field_that_is_not_there():
             r"--backbone.field.grid-lr must be a positive number, got 0.0",
         ),
         (["train", "voxel-grid", "--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
-        (["train", "voxel-grid", "--alpha", "nan"], r"--alpha must be a number >= 0, got nan"),
-        (["train", "voxel-grid", "--beta", "-0.1"], r"--beta must be a number >= 0, got -0.1"),
+        (["train", "voxel-grid", "--alpha", "nan"], r"--alpha must be a number in \[0, 1000000\], got nan"),
+        (["train", "voxel-grid", "--beta", "-0.1"], r"--beta must be a number in \[0, 1000000\], got -0.1"),
         (["train", "voxel-grid", "--converter-lr", "-1e400"], "--converter-lr must be a positive number, got -inf"),
+        (
+            ["train", "voxel-grid", "--hdr-log-weight", "1e300"],
+            r"--hdr-log-weight must be .*\[0, 1000000\], got 1e\+300",
+        ),
+        (
+            ["train", "voxel-grid", "--resolution", "100000"],
+            r"--resolution must be an integer in \[11, 4096\], got 100000",
+        ),
+        (["train", "voxel-grid", "--resolution", "10"], r"--resolution must be an integer in \[11, 4096\], got 10"),
+        (["bench", "cost", "--sizes", "128", "100000"], r"--sizes must be an integer in \[16, 4096\], got 100000"),
         (
             ["train", "voxel-grid", "--method", "hdr-nerf", "--unit-exposure-value", "1"],
             r"--unit-exposure-value must be a number in \(0, 1\), got 1.0",

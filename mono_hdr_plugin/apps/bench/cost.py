@@ -28,7 +28,7 @@ from mono_hdr_plugin.apps.bench.runs import (
     peak_memory_mib,
 )
 from mono_hdr_plugin.core.registry import register_benchmark
-from mono_hdr_plugin.core.validation import at_least
+from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, at_least, between
 from mono_hdr_plugin.data.dataset import SceneData, View
 
 
@@ -54,7 +54,7 @@ class BenchCostConfig:
     """torch threads per row."""
 
     flag_rules: ClassVar = {
-        "sizes": at_least(16),
+        "sizes": between(16, MAX_IMAGE_SIDE),
         "views": at_least(1),
         "warmup_steps": at_least(0),
         "timed_steps": at_least(1),

@@ -19,7 +19,7 @@ from mono_hdr_plugin.apps.bench.runs import (
 )
 from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import register_benchmark
-from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
+from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, at_least, between
 
 
 @register_benchmark("curves")
@@ -61,7 +61,7 @@ class BenchCurvesConfig:
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
-        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
+        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
         "budget_seconds": POSITIVE,
         "budget_steps": at_least(1),
         "eval_points": at_least(1),

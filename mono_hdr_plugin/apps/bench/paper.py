@@ -36,7 +36,7 @@ from mono_hdr_plugin.apps.bench.runs import (
 )
 from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import get_backbone, register_benchmark
-from mono_hdr_plugin.core.validation import POSITIVE, SEED, FlagError, at_least, between
+from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, SEED, FlagError, at_least, between
 
 # The fair-recipe table tunes these method settings for every method alike, times the backbone's
 # own `tuning_space()`: every method gets the same number of trials.
@@ -96,7 +96,7 @@ class BenchPaperConfig:
         "steps": at_least(1),
         "eval_points": at_least(1),
         "max_eval_views": at_least(1),
-        "resolution": at_least(SSIM_WINDOW),  # training and evaluation score SSIM
+        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
     }
 
     def run(self) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from mono_hdr_plugin.apps.studio.render import (
 )
 from mono_hdr_plugin.apps.studio.scene import StudioScene
 from mono_hdr_plugin.apps.studio.scenes import SCENES
-from mono_hdr_plugin.core.validation import SEED, FlagError, at_least
+from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, SEED, FlagError, between
 
 
 @dataclass
@@ -37,7 +37,7 @@ class SynthConfig:
     overwrite: bool = False
     """Replace a dataset an earlier `mono-hdr synth` wrote in --out instead of refusing."""
 
-    flag_rules: ClassVar = {"seed": SEED, "resolution": at_least(8)}
+    flag_rules: ClassVar = {"seed": SEED, "resolution": between(8, MAX_IMAGE_SIDE)}
 
 
 @dataclass
@@ -51,7 +51,7 @@ class ScenesConfig:
     resolution: int | None = None
     """List (and render) the scenes at N x N pixels (default: their own 128)."""
 
-    flag_rules: ClassVar = {"resolution": at_least(8)}
+    flag_rules: ClassVar = {"resolution": between(8, MAX_IMAGE_SIDE)}
 
 
 def png_bits(scene: StudioScene) -> int:
