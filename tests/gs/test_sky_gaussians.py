@@ -6,12 +6,12 @@ import pytest
 import torch
 from gs_outdoor import outdoor_capture
 from helpers import quiet_config
-from test_gs_sky import adam_state, descend, make_scene
+from test_gs_sky import adam_state, descend, hand_directions, make_scene
 
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.ply import load_ply
 from backbones.gs.sky import seen_by_cameras
-from backbones.gs.sky_gaussians import fibonacci_directions, scene_projection
+from backbones.gs.sky_gaussians import fibonacci_directions, scene_projection, shell_centre
 from mono_hdr_plugin.core.validation import FlagError, check_flags
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -63,6 +63,29 @@ class TestCoverage:
             assert float(features.extras["alpha"].detach().min()) > 0.98
             torch.testing.assert_close(image, torch.full_like(image, 0.5), atol=0.01, rtol=0)
             assert float(features.extras["render_depth"]().detach().abs().max()) == 0.0, "the sky has no depth"
+
+    def test_each_direction_shows_its_own_colour(self):
+        """A sky whose colour varies with direction (raw 0.3 d: LDR 0.5 + 0.3 d) renders each pixel the
+        colour of the direction where its ray meets the shell: a colour drawn at another Gaussian's
+        place is off by up to 0.6."""
+        scene = make_scene(points=None)
+        backbone = sky_backbone(scene)
+        centre = shell_centre(scene)
+        radius = float((backbone.sky.means[0] - centre).norm())
+        with torch.no_grad():
+            backbone.opacity_logits.fill_(-30.0)  # no foreground
+            backbone.sky.colors.copy_(0.3 * (backbone.sky.means - centre) / radius)
+        for camera in scene.train_cameras:
+            features = backbone.render_ldr_features(camera)
+            image = features.composite(features.colors).detach()
+            rays = hand_directions(camera)
+            offset = camera.center - centre  # where each ray leaves the sphere |o + t d - centre| = radius
+            along = rays @ offset
+            t = -along + (along**2 - float(offset @ offset) + radius**2).sqrt()
+            alpha = features.extras["alpha"].detach().reshape(image.shape[:2])[..., None]  # 0.98-1: over black
+            expected = (0.5 + 0.3 * (offset + t[..., None] * rays) / radius) * alpha
+            error = (image - expected).abs()
+            assert float(error.mean()) < 0.025 and float(error.max()) < 0.06, (error.mean(), error.max())
 
     def test_scene_in_front_of_the_sky(self):
         scene = make_scene(points=200)
