@@ -23,7 +23,7 @@ RUN_KEYS = (
     "hdr_warnings",
     *RADIANCE_KEYS,
 )
-RUNS = ("baseline", "white-balance", "camera-opt", "nerf", "hdr-gs")
+RUNS = ("baseline", "white-balance", "camera-opt", "nerf", "hdr-gs", "prior-1")
 """The runs of benchmarks/run_real_lund.sh, in the order the table lists them."""
 
 

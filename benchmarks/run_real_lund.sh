@@ -9,6 +9,7 @@
 #   camera-opt     white balance and pose refinement (--camera-opt-lr 1e-3)
 #   nerf           Mono-HDR-NeRF with white balance
 #   hdr-gs         the HDR-GS baseline with white balance
+#   prior-1        the baseline with the HDR prior at weight 1 (the default without HDR views is 0.1)
 # Finished runs are kept (the script resumes). Run with nothing else on the machine:
 #   bash benchmarks/run_real_lund.sh [OUT] [SECONDS]
 set -euo pipefail
@@ -30,8 +31,9 @@ declare -A flags=(
     [camera-opt]="gs --learn-white-balance on --camera-opt on --camera-opt-lr 1e-3"
     [nerf]="nerf --learn-white-balance on --camera-opt off"
     [hdr-gs]="gs --method hdr-gs --learn-white-balance on --camera-opt off"
+    [prior-1]="gs --learn-white-balance off --camera-opt off --hdr-prior-weight 1"
 )
-for run in ${RUNS:-baseline white-balance camera-opt nerf hdr-gs}; do
+for run in ${RUNS:-baseline white-balance camera-opt nerf hdr-gs prior-1}; do
     [ -f "$out/$run/metrics.json" ] && continue
     # shellcheck disable=SC2086
     mono-hdr train ${flags[$run]} --data "$scratch/data" --downscale 2 --max-seconds "$seconds" \
