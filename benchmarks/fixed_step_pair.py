@@ -49,14 +49,29 @@ def run(tree: Path, backbone: str, scene: str, resolution: int | None, out: Path
     return metrics
 
 
+TIMINGS = ("train_seconds",)
+"""Keys of metrics.json that time the run, not score it: they differ between any two runs."""
+
+
+def scores(metrics: dict) -> dict[str, float]:
+    """Every score of a metrics.json, per-exposure tables flattened (`ldr_psnr_per_exposure/0.5`)."""
+    flat = {}
+    for key, value in metrics.items():
+        if isinstance(value, dict):
+            flat.update({f"{key}/{inner}": number for inner, number in value.items() if isinstance(number, float)})
+        elif isinstance(value, float) and key not in TIMINGS:
+            flat[key] = value
+    return flat
+
+
 def largest_difference(before: dict, after: dict) -> float:
     """The largest relative difference between two metrics.json files over every score both hold
     (0: the same to every digit)."""
-    shared = [key for key, value in before.items() if isinstance(value, float) and isinstance(after.get(key), float)]
+    first, second = scores(before), scores(after)
     differences = [
-        abs(before[key] - after[key]) / max(abs(before[key]), 1e-12)
-        for key in shared
-        if before[key] != after[key] and not (math.isnan(before[key]) and math.isnan(after[key]))
+        abs(first[key] - second[key]) / max(abs(first[key]), 1e-12)
+        for key in first.keys() & second.keys()
+        if first[key] != second[key] and not (math.isnan(first[key]) and math.isnan(second[key]))
     ]
     return max(differences, default=0.0)
 
