@@ -90,7 +90,7 @@ def between(low: float, high: float, low_open: bool = False, high_open: bool = F
 POSITIVE = Rule(low=0, low_open=True)
 """Rates, sizes, exposures, scales: > 0."""
 NON_NEGATIVE = at_least(0)
-"""Loss weights, counts that may be zero, thresholds: >= 0."""
+"""Counts that may be zero, thresholds, regularisation strengths: >= 0 (loss terms: LOSS_WEIGHT)."""
 LOSS_WEIGHT = between(0, 1e6)
 """A loss term's weight: past 1e6 it drowns every other term, and soon overflows float32 (NaN steps)."""
 MAX_IMAGE_SIDE = 4096

@@ -7,6 +7,9 @@ from typing import ClassVar, Literal
 from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, SEED, between
 
+TRAINING_RESOLUTION = between(SSIM_WINDOW, MAX_IMAGE_SIDE)
+"""--resolution of a studio scene that is trained or scored: SSIM's window at least, the studio's largest."""
+
 
 @dataclass
 class DataConfig:
@@ -39,7 +42,7 @@ class DataConfig:
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
         "fixed_exposure": POSITIVE,
-        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
+        "resolution": TRAINING_RESOLUTION,
         "downscale": POSITIVE,
         "exposure_seed": SEED,
     }

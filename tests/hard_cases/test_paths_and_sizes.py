@@ -106,8 +106,8 @@ class TestDownscaleBeyondTheImage:
             )
         assert not out.exists()
 
-    def test_images_too_small_at_any_factor_are_named(self, tmp_path, disk_scene):
-        """The 16 px disk scene trains; a 10 px one cannot, and no flag can help."""
+    def test_images_too_small_at_any_factor_are_named(self, tmp_path):
+        """A 10 px scene cannot train, and no flag can help."""
         small = tmp_path / "scene"
         write_disk_scene(small, size=10)
         with pytest.raises(DatasetError, match=r"\(10x10\) is under the 11 pixels a side this command needs"):

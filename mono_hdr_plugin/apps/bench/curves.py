@@ -17,9 +17,9 @@ from mono_hdr_plugin.apps.bench.runs import (
     parse_override,
     parse_presets,
 )
-from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import register_benchmark
-from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, at_least, between
+from mono_hdr_plugin.core.validation import POSITIVE, at_least, between
+from mono_hdr_plugin.data.config import TRAINING_RESOLUTION
 
 
 @register_benchmark("curves")
@@ -61,7 +61,7 @@ class BenchCurvesConfig:
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),
-        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
+        "resolution": TRAINING_RESOLUTION,
         "budget_seconds": POSITIVE,
         "budget_steps": at_least(1),
         "eval_points": at_least(1),

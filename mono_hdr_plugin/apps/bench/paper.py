@@ -34,9 +34,9 @@ from mono_hdr_plugin.apps.bench.runs import (
     paper_backbones,
     parse_presets,
 )
-from mono_hdr_plugin.core.metrics import SSIM_WINDOW
 from mono_hdr_plugin.core.registry import get_backbone, register_benchmark
-from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, POSITIVE, SEED, FlagError, at_least, between
+from mono_hdr_plugin.core.validation import POSITIVE, SEED, FlagError, at_least, between
+from mono_hdr_plugin.data.config import TRAINING_RESOLUTION
 
 # The fair-recipe table tunes these method settings for every method alike, times the backbone's
 # own `tuning_space()`: every method gets the same number of trials.
@@ -96,7 +96,7 @@ class BenchPaperConfig:
         "steps": at_least(1),
         "eval_points": at_least(1),
         "max_eval_views": at_least(1),
-        "resolution": between(SSIM_WINDOW, MAX_IMAGE_SIDE),  # training and evaluation score SSIM
+        "resolution": TRAINING_RESOLUTION,
     }
 
     def run(self) -> dict[str, Any]:
