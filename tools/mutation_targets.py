@@ -46,6 +46,8 @@ TARGETS = {
         "mono_hdr_plugin/core/losses.py",
         (
             "tests/core/test_metrics.py::TestLosses",
+            "tests/core/test_metrics.py::TestScaleInvariantLogLoss",
+            "tests/core/test_hdr_prior.py::TestLogRatioLoss",
             "tests/core/test_method_details.py",
             f"{WIRING}::TestEveryLossSwitch",
         ),

@@ -20,6 +20,7 @@ from mono_hdr_plugin.core.calibration import (
     well_exposed_channels,
 )
 from mono_hdr_plugin.core.colour import srgb_encode
+from mono_hdr_plugin.core.exposure import ExposureConfig, build_view_exposures
 from mono_hdr_plugin.core.metrics import aligning_scale, emitter_mask
 from mono_hdr_plugin.data.dataset import SceneData, View
 from mono_hdr_plugin.methods.base import MethodConfig, MethodOutput, Targets, build_method
@@ -199,6 +200,33 @@ class TestFitRadianceCalibration:
         rays = fit_radiance_calibration(pipeline, scene)
         assert 5 * 40 * 3 * 0.5 < rays.samples <= 5 * 40 * 3  # 5 views, 40 rays, 3 channels; most usable
         assert whole.samples > 5 * pixels * 3 * 0.5
+
+    def test_ray_samples_are_distinct_pixels_over_every_row_and_column(self):
+        scene = known_scene()
+        pipeline = known_pipeline(scene)
+        pipeline.backbone.pixel_batch = 64
+        view = scene.train[0]
+        hdr, rows, cols = calibration_module._render_pixels(pipeline, view, torch.Generator().manual_seed(0))
+        pixels = view.camera.width * view.camera.height
+        assert len(set(zip(rows.tolist(), cols.tolist(), strict=True))) == len(rows) == min(pixels, 4096)
+        assert set(cols.tolist()) == set(range(view.camera.width)) and set(rows.tolist()) == set(
+            range(view.camera.height)
+        )
+        full = pipeline.render(view.camera, view.exposure).hdr
+        torch.testing.assert_close(hdr, full[rows, cols])
+
+    def test_per_view_exposures_are_the_models(self):
+        """Learned exposures start at the views' times; with 4 of 5 views away from the reference
+        exposure, reading them any other way moves the median."""
+        scene = known_scene(with_truth=False, exposures=(0.5, 8.0, 2.0, 0.5, 8.0))
+        exposures = build_view_exposures(ExposureConfig(learn_exposure=True, learn_white_balance="off"), scene)
+        assert exposures is not None and exposures.reference_exposure == 2.0
+        pipeline = Pipeline.create(
+            "known-render", KnownRenderConfig(), MethodConfig(method="mono"), scene.scene_info(), exposures
+        )
+        zero_method(pipeline)
+        calibration = fit_radiance_calibration(pipeline.eval(), scene)
+        assert calibration.scale == pytest.approx(PHOTO_FACTOR / 2.0, rel=5e-3)
 
     @pytest.mark.parametrize(
         "views, expected",

@@ -1,7 +1,9 @@
 """The 3DGS backbone with sky Gaussians behind its splats (--backbone.background sky-gaussians)."""
 
+import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 from gs_outdoor import outdoor_capture
@@ -11,7 +13,16 @@ from test_gs_sky import adam_state, descend, hand_directions, make_scene
 from backbones.gs import DefaultStrategy, GaussianBackbone, GaussianConfig, McmcStrategy
 from backbones.gs.ply import load_ply
 from backbones.gs.sky import seen_by_cameras
-from backbones.gs.sky_gaussians import fibonacci_directions, scene_projection, shell_centre
+from backbones.gs.sky_gaussians import (
+    SkyGaussians,
+    fibonacci_directions,
+    scene_projection,
+    shell_centre,
+    shell_directions,
+    shell_radius,
+)
+from mono_hdr_plugin.core.backbone import SceneInfo
+from mono_hdr_plugin.core.cameras import look_at
 from mono_hdr_plugin.core.validation import FlagError, check_flags
 from mono_hdr_plugin.training.trainer import Trainer
 
@@ -47,6 +58,80 @@ class TestChoiceAndPlacement:
         directions = fibonacci_directions(1000)
         torch.testing.assert_close(directions.norm(dim=-1), torch.ones(1000))
         assert directions.mean(0).norm() < 0.01, "spread evenly"
+
+
+def looking_at(target, *eyes, parallel: bool = False) -> SceneInfo:
+    """A scene box [-5, -4, -3] .. [1, 1, 1] (centre (-2, -1.5, -1)) seen by cameras at `eyes` looking at
+    `target`, or with `parallel` each along the direction `target` (eye + target)."""
+    base = make_scene(points=None).train_cameras[0]
+    cameras = []
+    for eye in map(torch.tensor, eyes):
+        aim = eye + torch.tensor(target) if parallel else torch.tensor(target)
+        cameras.append(dataclasses.replace(base, c2w=look_at(eye, aim)))
+    return SceneInfo(torch.tensor([-5.0, -4.0, -3.0]), torch.ones(3), cameras, unbounded=True)
+
+
+class TestShellGeometry:
+    """The shell's directions, centre and radius against values computed here another way."""
+
+    def test_fibonacci_directions_by_hand(self):
+        golden_angle = 2 * math.pi * (1 - 2 / (1 + math.sqrt(5)))  # 2 pi (1 - 1 / phi)
+        count = 7
+        expected = []
+        for i in range(count):
+            z = 1 - (2 * i + 1) / count
+            ring = math.sqrt(1 - z * z)
+            angle = (i + 0.5) * golden_angle
+            expected.append([ring * math.cos(angle), ring * math.sin(angle), z])
+        torch.testing.assert_close(fibonacci_directions(count), torch.tensor(expected), atol=1e-6, rtol=0)
+
+    def test_the_centre_is_where_the_optical_axes_meet(self):
+        """Least squares over the axes plus a pull of weight 1e-3 per camera towards the box centre,
+        solved here with numpy's lstsq on the stacked rows."""
+        scene = looking_at([2.0, 1.0, 0.5], [2.0, -6.0, 1.0], [9.0, 1.5, 0.0], [-3.0, 6.0, 2.5])
+        rows, rhs = [], []
+        for camera in scene.train_cameras:
+            axis = camera.c2w[:3, 2].double().numpy()
+            projector = np.eye(3) - np.outer(axis, axis)
+            rows.append(projector)
+            rhs.append(projector @ camera.center.double().numpy())
+        pull = math.sqrt(1e-3 * len(scene.train_cameras))
+        rows.append(pull * np.eye(3))
+        rhs.append(pull * np.array([-2.0, -1.5, -1.0]))
+        expected = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+        np.testing.assert_allclose(shell_centre(scene).numpy(), expected, atol=1e-5)
+        assert np.linalg.norm(expected - [2.0, 1.0, 0.5]) < 0.01, "the pull is weak"
+
+    def test_parallel_axes_take_the_box_centre_along_them(self):
+        # all along +y: across the axes the mean camera position, along them the box centre's y
+        scene = looking_at([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 3.0], parallel=True)
+        torch.testing.assert_close(shell_centre(scene), torch.tensor([0.0, -1.5, 1.0]), atol=5e-3, rtol=0)
+        assert torch.equal(shell_centre(dataclasses.replace(scene, train_cameras=[])), torch.tensor([-2.0, -1.5, -1.0]))
+
+    def test_a_shell_no_camera_sees_is_the_whole_sphere(self):
+        scene = looking_at([0.0, 0.0, 0.0], [0.0, -6.0, 0.0])
+        blind = [dataclasses.replace(camera, near=1e4, far=1e5) for camera in scene.train_cameras]  # beyond the shell
+        directions, sphere = shell_directions(300, torch.zeros(3), 80.0, blind)
+        assert sphere == 300
+        torch.testing.assert_close(directions, fibonacci_directions(300))
+
+    def test_each_gaussian_spans_its_share_of_the_sphere(self):
+        """Without cameras the shell is the whole sphere: S Gaussians on radius R each cover 4 pi R^2 / S,
+        and their scale is `scale` times the square root of that."""
+        scene = SceneInfo(-torch.ones(3), torch.ones(3), [], unbounded=True)
+        sky = SkyGaussians(scene, 200, 0.7)
+        radius = 10 * math.sqrt(3)  # the box's corners, from its centre
+        torch.testing.assert_close((sky.means - scene.center).norm(dim=-1), torch.full((200,), radius))
+        torch.testing.assert_close(sky.scales, torch.full((200,), 0.7 * math.sqrt(4 * math.pi * radius**2 / 200)))
+
+    def test_the_radius_is_ten_times_the_farthest_corner_or_camera(self):
+        # from the origin the farthest corner is the box's low one, (-5, -4, -3): sqrt(50)
+        scene = looking_at([0.0, 0.0, 0.0], [0.0, -6.0, 0.0])
+        assert shell_radius(scene, torch.zeros(3)) == pytest.approx(10 * math.sqrt(50))
+        far = looking_at([0.0, 0.0, 0.0], [0.0, -9.0, 0.0])  # a camera farther than every corner
+        assert shell_radius(far, torch.zeros(3)) == pytest.approx(90.0)
+        # about another point: the corner (1, 1, 1) is sqrt(3) x 7 from (-6, -6, -6); the camera 6 sqrt(3)
+        assert shell_radius(scene, torch.full((3,), -6.0)) == pytest.approx(10 * 7 * math.sqrt(3))
 
 
 class TestCoverage:
@@ -178,6 +263,22 @@ class TestSaving:
         sky = load_ply(tmp_path / "model.sky.ply")
         torch.testing.assert_close(sky["means"], backbone.sky.means)
         assert sky["sh_rest"].shape == (backbone.sky.count, 0, 3)
+
+    def test_a_viewer_sees_the_skys_colours_opaque_and_round(self, tmp_path):
+        """What a 3DGS viewer computes from the PLY: colour 0.5 + Y00 f_dc (Y00 = 1 / (2 sqrt(pi))), opacity
+        sigmoid(logit), scales exp(log scale), rotation the normalised quaternion."""
+        backbone = sky_backbone(make_scene(points=40))
+        count = backbone.sky.count
+        with torch.no_grad():
+            backbone.sky.colors.copy_(torch.rand(count, 3, generator=torch.Generator().manual_seed(3)) - 0.5)
+        backbone.export_ply(tmp_path / "model.ply")
+        sky = load_ply(tmp_path / "model.sky.ply")
+        y00 = 1 / (2 * math.sqrt(math.pi))
+        torch.testing.assert_close(0.5 + y00 * sky["sh_dc"][:, 0], backbone.sky.colors.detach() + 0.5)
+        torch.testing.assert_close(torch.sigmoid(sky["opacity_logits"]), torch.full((count,), 0.9999))
+        torch.testing.assert_close(sky["log_scales"].exp(), backbone.sky.scales[:, None].expand(count, 3))
+        quats = sky["quats"] / sky["quats"].norm(dim=-1, keepdim=True)
+        torch.testing.assert_close(quats, torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(count, 4))
 
 
 def test_two_training_steps_change_the_sky(tmp_path):

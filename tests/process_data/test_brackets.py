@@ -351,3 +351,8 @@ class TestAlignment:
         view = alignment_view(image)  # 600 px long side: blocks of ceil(600 / 128) = 5
         assert view.shape == (120, 40, 3)
         np.testing.assert_allclose(view[0, 0], image[:5, :5].reshape(-1, 3).mean(0))
+
+    @pytest.mark.parametrize("size", [(100, 64), (128, 128)])
+    def test_a_photo_within_the_alignment_size_is_kept_pixel_for_pixel(self, size):
+        image = np.random.default_rng(0).random((*size, 3))
+        np.testing.assert_array_equal(alignment_view(image), image)
