@@ -157,11 +157,7 @@ class Trainer:
         """Under --max-seconds, re-estimate the steps that fit from the recent step time and tell
         the backbone when the estimate moved, so its schedules end with the budget."""
         budget = self.config.max_seconds
-        if (
-            budget is None
-            or self.step < RUN_LENGTH_WARMUP
-            or self.step % RUN_LENGTH_EVERY not in (0, RUN_LENGTH_WARMUP)
-        ):
+        if budget is None or (self.step != RUN_LENGTH_WARMUP and self.step % RUN_LENGTH_EVERY != 0):
             return
         per_step = sum(self.recent_step_seconds) / len(self.recent_step_seconds)
         remaining = max(budget - self.train_seconds, 0.0)
