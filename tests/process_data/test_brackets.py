@@ -20,6 +20,7 @@ from mono_hdr_plugin.data.photos.brackets import (
     detect_brackets,
     dynamic_range_stops,
     estimate_relative_exposures,
+    lines_up,
     merge_bracket,
     recover_response,
     response_problem,
@@ -345,6 +346,28 @@ class TestAlignment:
         # A smooth exponential ramp looks the same shifted, up to a gain: nothing says the photos align.
         photos = [photograph(linear_scene(stops_range=8.0), t) for t in (1.0, 4.0)]
         assert aligned_members(photos, [0, 1], 0, gamma_response()) == [0]
+
+    def test_a_shorter_exposure_brighter_than_the_longer_is_another_view(self):
+        """A tenth of the pixels the longer exposure records well are clipped in the shorter one: no
+        single view does that, though the rest of the pair lines up (the ratio's spread is a median)."""
+        scene = textured_scene()
+        darker, brighter = photograph(scene, 1.0), photograph(scene, 4.0)
+        assert lines_up(darker, brighter, gamma_response())
+        well_exposed = np.flatnonzero(((brighter > 0.2) & (brighter < 0.9)).all(-1))
+        glare = darker.reshape(-1, 3).copy()
+        glare[well_exposed[::10]] = 1.0
+        assert not lines_up(glare.reshape(darker.shape), brighter, gamma_response())
+
+    def test_no_shared_pixels_is_no_evidence(self):
+        """Where the longer exposure records well the shorter is black, and the reverse: nothing to compare."""
+        scene = np.where(np.arange(64)[None, :, None] < 32, 0.7, 0.001) * np.ones((48, 64, 3))
+        darker, brighter = photograph(scene, 1.0), photograph(scene, 100.0)
+        assert (darker[:, 32:] < 0.05).all() and (brighter[:, :32] == 1.0).all()
+        assert lines_up(darker, brighter, gamma_response())
+
+    def test_a_clipped_longer_exposure_is_no_evidence(self):
+        darker = photograph(textured_scene(), 1.0)
+        assert lines_up(darker, np.ones_like(darker), gamma_response())
 
     def test_alignment_view_is_block_means(self):
         image = np.arange(2 * 300 * 200 * 3, dtype=np.float64).reshape(2 * 300, 200, 3)
