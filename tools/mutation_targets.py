@@ -128,7 +128,7 @@ TARGETS = {
     "pyramid": Target(
         "mono_hdr_plugin.training.pyramid",
         "mono_hdr_plugin/training/pyramid.py",
-        ("tests/core/test_pyramid.py", "-k", "not automatic_pyramid_at_512_px"),
+        ("tests/core/test_pyramid.py", "tests/core/test_progress.py", "-k", "not automatic_pyramid_at_512_px"),
     ),
     "brackets": Target(
         "mono_hdr_plugin.data.photos.brackets",
@@ -161,6 +161,7 @@ TARGETS = {
         "mono_hdr_plugin.training.trainer",
         "mono_hdr_plugin/training/trainer.py",
         (
+            "tests/core/test_run_length.py",
             "tests/hard_cases/test_bad_input_commands.py::test_max_seconds_alone_is_not_cut_at_the_default_steps",
             "tests/gs/test_gs_training.py",
             "-k",

@@ -16,7 +16,13 @@ from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.checkpoints import load_checkpoint
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.pyramid import automatic_levels, downscaled_view, pyramid_level, relative_cost
+from mono_hdr_plugin.training.pyramid import (
+    ImagePyramid,
+    automatic_levels,
+    downscaled_view,
+    pyramid_level,
+    relative_cost,
+)
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -175,6 +181,30 @@ def test_resuming_mid_pyramid_continues_at_its_level(tmp_path, voxel_scene_64, v
     sizes = watch_sizes(resumed)
     resumed.fit()
     assert resumed.step == 8 and sizes == [(32, 32)] + [(64, 64)] * 4
+
+
+@pytest.mark.parametrize(
+    "side, levels, most",
+    [(12, 1, None), (31, 2, 1), (32, 2, None), (20, 2, 1), (100, 4, 3), (128, 4, None), (63, 3, 2)],
+)
+def test_the_coarsest_level_keeps_16_pixels_a_side(side, levels, most):
+    """side // 2^(levels - 1) must be 16 or more; the error names the most levels that keep it."""
+    views = sized_views((side + 5, side))  # the shorter side counts
+    if most is None:
+        ImagePyramid(views, levels, 0.5)
+        return
+    with pytest.raises(
+        FlagError, match=rf"--pyramid-levels {levels}: .* {side} px .* at most --pyramid-levels {most}$"
+    ):
+        ImagePyramid(views, levels, 0.5)
+
+
+def test_level_k_is_2_to_the_k_times_smaller():
+    camera = Camera(look_at(torch.tensor([0.0, -3.0, 1.0]), torch.zeros(3)), 90.0, 90.0, 64.0, 64.0, 128, 128)
+    view = View(camera, torch.rand(128, 128, 3), 0.5, 0, "v")
+    pyramid = ImagePyramid([view], 4, 0.5)
+    assert [pyramid.view(0, level).camera.width for level in range(4)] == [128, 64, 32, 16]
+    assert pyramid.view(0, 3).image.shape == (16, 16, 3)
 
 
 def test_too_many_levels_for_the_images(tmp_path, voxel_scene_64, voxel_backbone_config):
