@@ -165,7 +165,7 @@ TARGETS = {
             "tests/hard_cases/test_bad_input_commands.py::test_max_seconds_alone_is_not_cut_at_the_default_steps",
             "tests/gs/test_gs_training.py",
             "-k",
-            "max_seconds or stops_on_time or budget_schedule",
+            "UpdateRunLength or max_seconds or stops_on_time or budget_schedule",
         ),
         scopes=("Trainer._update_run_length",),
     ),
