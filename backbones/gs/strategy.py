@@ -263,7 +263,7 @@ def ndc_gradient_scale(projected) -> Tensor:
     factors are W / 2 and H / 2, not w / 2 and h / 2; and the step's loss is a mean over the crop's w * h
     pixels, each weighted W * H / (w * h) times more than in a whole-frame mean, which w * h / (W * H)
     undoes. A Gaussian inside the crop then accumulates what a whole-image step would have given it
-    (tests/core/test_regions.py), and a crop does not move the densification threshold.
+    (tests/gs/test_gs_regions.py), and a crop does not move the densification threshold.
     """
     frame_width, frame_height = projected.frame or (projected.width, projected.height)
     share = projected.width * projected.height / (frame_width * frame_height)

@@ -39,9 +39,9 @@ def training_batch(
         if region_pixels is None or camera.width * camera.height <= region_pixels:
             return camera, Targets(ldr=view.image, exposure=view.exposure, hdr=hdr)
         left, top, width, height = random_region(camera.width, camera.height, region_pixels, generator)
-        rows, cols = slice(top, top + height), slice(left, left + width)
+        box = slice(top, top + height), slice(left, left + width)
         return camera.crop(left, top, width, height), Targets(
-            ldr=view.image[rows, cols], exposure=view.exposure, hdr=None if hdr is None else hdr[rows, cols]
+            ldr=view.image[box], exposure=view.exposure, hdr=None if hdr is None else hdr[box]
         )
     height, width = view.camera.height, view.camera.width
     flat = torch.randint(0, height * width, (batch_size,), generator=generator)

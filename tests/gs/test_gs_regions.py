@@ -292,5 +292,5 @@ class TestBadValues:
         monkeypatch.chdir(tmp_path)
         with pytest.raises(SystemExit) as exit_info:
             main(["train", "gs", "--region-pixels", value, "--scene", "demo"])
-        assert exit_info.value.code != 0 and "--region-pixels" in capsys.readouterr().err
+        assert exit_info.value.code == 2 and "--region-pixels" in capsys.readouterr().err
         assert list(tmp_path.iterdir()) == []
