@@ -267,6 +267,37 @@ class TestTrainerSteps:
         assert sizes == [(16, 16, None)] * 2 + [(24, 25, (32, 32))] * 2 + [(24, 25, (64, 64))] * 2
         assert trainer.pyramid.level_costs == [1.0, 1.0, 256 / 600]
 
+    @pytest.mark.parametrize("background", ["environment", "sky-gaussians"])
+    def test_crops_with_refined_poses_learned_white_balance_and_a_sky(self, tmp_path, scene, background):
+        """The paths that take the step's camera: pose refinement (a new c2w, the crop's intrinsics and
+        frame kept), per-view exposure and white balance, the environment map or sky Gaussians."""
+        from dataclasses import replace
+
+        from mono_hdr_plugin.core.camera_optimizer import CameraOptConfig
+        from mono_hdr_plugin.core.exposure import ExposureConfig
+
+        preset = replace(GaussianBackbone.presets()["cpu"], background=background)
+        config = make_config(
+            tmp_path,
+            preset,
+            max_steps=2,
+            region_pixels=600,
+            pyramid_levels=1,
+            camera=CameraOptConfig(camera_opt="on"),
+            exposure=ExposureConfig(learn_exposure=True, learn_white_balance="on"),
+        )
+        trainer = Trainer(config, "gs", scene)
+        refined: list = []
+        refine = trainer.pipeline.poses.refine
+        trainer.pipeline.poses.refine = lambda camera, view: refined.append(refine(camera, view)) or refined[-1]
+        records = [trainer.train_step() for _ in range(2)]
+        assert np.isfinite([r["loss"] for r in records]).all() and not any(r["skipped"] for r in records)
+        assert [(c.width, c.height, c.frame_size, c.c2w.requires_grad) for c in refined] == [
+            (24, 25, (64, 64), True)
+        ] * 2
+        # a step that left the pose corrections without a gradient raises (Pipeline.check_pose_gradient)
+        assert (trainer.backbone.environment if background == "environment" else trainer.backbone.sky) is not None
+
     def test_nerf_refuses_the_flag(self, tmp_path, scene):
         from mono_hdr_plugin.core.registry import get_backbone
 
