@@ -106,4 +106,64 @@ TARGETS = {
         "backbones/gs/rasterizer.py",
         ("tests/gs/test_gs_rasterizer_api.py", "tests/gs/test_gs_rasterizer.py", "tests/gs/test_gs_edge_gradients.py"),
     ),
+    # the code of 2026-12-03 on (issue 48): calibration, the HDR prior, the pyramid, bracket
+    # alignment, the sky shell, the unbounded decision and the step budget of a timed run
+    "calibration": Target(
+        "mono_hdr_plugin.core.calibration",
+        "mono_hdr_plugin/core/calibration.py",
+        ("tests/core/test_calibration.py", "tests/core/test_hdr_prior.py"),
+    ),
+    "calibration-fit": Target(
+        "mono_hdr_plugin.training.calibration",
+        "mono_hdr_plugin/training/calibration.py",
+        ("tests/core/test_calibration.py", "tests/core/test_hdr_prior.py", KNOWN_ANSWER),
+    ),
+    "hdr-prior": Target(
+        "mono_hdr_plugin.training.hdr_prior",
+        "mono_hdr_plugin/training/hdr_prior.py",
+        ("tests/core/test_hdr_prior.py", "tests/core/test_calibration.py"),
+    ),
+    "pyramid": Target(
+        "mono_hdr_plugin.training.pyramid",
+        "mono_hdr_plugin/training/pyramid.py",
+        ("tests/core/test_pyramid.py", "-k", "not automatic_pyramid_at_512_px"),
+    ),
+    "brackets": Target(
+        "mono_hdr_plugin.data.photos.brackets",
+        "mono_hdr_plugin/data/photos/brackets.py",
+        ("tests/process_data/test_brackets.py",),
+        scopes=(
+            "spread_stops",
+            "check_exposures_differ",
+            "brightness_order",
+            "alignment_view",
+            "lines_up",
+            "_ratio_spread",
+            "aligned_members",
+            "estimate_relative_exposures",
+        ),
+    ),
+    "sky-gaussians": Target(
+        "backbones.gs.sky_gaussians", "backbones/gs/sky_gaussians.py", ("tests/gs/test_sky_gaussians.py",)
+    ),
+    "unbounded-nerf": Target(
+        "backbones.nerf.backbone",
+        "backbones/nerf/backbone.py",
+        ("tests/nerf/test_unbounded.py",),
+        scopes=("unbounded_choices",),
+    ),
+    "unbounded-gs": Target(
+        "backbones.gs.sky", "backbones/gs/sky.py", ("tests/gs/test_gs_sky.py",), scopes=("uses_environment",)
+    ),
+    "run-length": Target(
+        "mono_hdr_plugin.training.trainer",
+        "mono_hdr_plugin/training/trainer.py",
+        (
+            "tests/hard_cases/test_bad_input_commands.py::test_max_seconds_alone_is_not_cut_at_the_default_steps",
+            "tests/gs/test_gs_training.py",
+            "-k",
+            "max_seconds or stops_on_time or budget_schedule",
+        ),
+        scopes=("Trainer._update_run_length",),
+    ),
 }

@@ -263,7 +263,7 @@ def print_metrics(metrics: dict, path: Path) -> None:
         table.add_row(f"ldr_psnr @ {exposure} s", f"{value:.4f}")
     console.print(table)
     for warning in metrics.get("hdr_warnings", []):
-        note = f" {warning} (docs/method.md, 'HDR without HDR views')"
+        note = f" {warning} (docs/method.md, 'Scores without ground truth')"
         errors.print(Text.assemble(("warning:", "bold yellow"), note))
     console.print(Text(f"metrics written to {path}"), soft_wrap=True)
 

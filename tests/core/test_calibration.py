@@ -8,8 +8,17 @@ import pytest
 import torch
 from known_render import KnownRenderConfig, camera_at, expected_render, zero_method
 
+import mono_hdr_plugin.training.calibration as calibration_module
 from mono_hdr_plugin.apps.display import to_display
-from mono_hdr_plugin.core.calibration import MIN_SAMPLES, RadianceCalibration, fit_scale, median_log_ratio
+from mono_hdr_plugin.core.calibration import (
+    MIN_SAMPLES,
+    WELL_EXPOSED,
+    RadianceCalibration,
+    fit_scale,
+    median_log_ratio,
+    well_exposed,
+    well_exposed_channels,
+)
 from mono_hdr_plugin.core.colour import srgb_encode
 from mono_hdr_plugin.core.metrics import aligning_scale, emitter_mask
 from mono_hdr_plugin.data.dataset import SceneData, View
@@ -88,6 +97,52 @@ class TestFitScale:
         scale, count = median_log_ratio(target, torch.ones(5))
         assert (scale, count) == (pytest.approx(4.0), 4)
 
+    def test_a_zero_or_non_finite_prediction_does_not_count(self):
+        # a zero prediction would be an infinite ratio and move the median to 8
+        prediction = torch.tensor([1.0, 1.0, 1.0, 1.0, 0.0, math.inf, math.nan])
+        target = torch.tensor([1.0, 2.0, 8.0, 16.0, 5.0, 5.0, 5.0])
+        assert median_log_ratio(target, prediction) == (pytest.approx(4.0), 4)
+
+    def test_one_usable_entry_is_its_ratio_and_none_is_scale_one(self):
+        assert median_log_ratio(torch.tensor([6.0, 0.0]), torch.tensor([2.0, 3.0])) == (pytest.approx(3.0), 1)
+        assert median_log_ratio(torch.zeros(3), torch.ones(3)) == (1.0, 0)
+
+    def test_an_exact_ratio_is_found_to_float64_accuracy(self):
+        # powers of two times 4: exact in float32, so only the logs' precision is left (float32: ~1e-7)
+        prediction = 2.0 ** torch.arange(-20, 20, dtype=torch.float32)
+        scale, _ = median_log_ratio(4.0 * prediction, prediction)
+        assert scale == pytest.approx(4.0, rel=1e-12)
+
+    @pytest.mark.parametrize("exposed, expected", [(MIN_SAMPLES, 2.0), (MIN_SAMPLES - 1, 10.0)])
+    def test_the_well_exposed_fit_needs_min_samples_usable_pixels(self, exposed, expected):
+        """Well-exposed pixels say 2x, the clipped ones (more of them) 10x: the well-exposed median
+        wins from exactly MIN_SAMPLES usable pixels on; below, every pixel counts and 10x wins."""
+        clipped = 3 * MIN_SAMPLES
+        photo = torch.cat([torch.full((exposed, 3), 0.5), torch.ones(clipped, 3)])
+        prediction = torch.ones(exposed + clipped, 3)
+        prediction[:exposed, 1:] = 0.0  # one usable channel per well-exposed pixel: exposed samples, not 3x
+        target = torch.cat([torch.full((exposed, 3), 2.0), torch.full((clipped, 3), 10.0)])
+        scale, count = fit_scale(target, prediction, photo)
+        assert scale == pytest.approx(expected)
+        assert count == (exposed if expected == 2.0 else exposed + 3 * clipped)
+
+
+class TestWellExposed:
+    def test_the_limits_themselves_are_not_well_exposed(self):
+        low, high = WELL_EXPOSED
+        photo = torch.tensor([[low, 0.5, high], [0.06, 0.5, 0.94]])
+        assert well_exposed_channels(photo).tolist() == [[False, True, False], [True, True, True]]
+        assert well_exposed(photo).tolist() == [False, True]
+
+    def test_an_uncalibrated_model_keeps_its_scale(self):
+        assert RadianceCalibration().state() == {
+            "scale": 1.0,
+            "units": "uncalibrated",
+            "samples": 0,
+            "step": None,
+            "basis": "unknown",
+        }
+
 
 class TestHdrScores:
     def test_emitter_mask_leaves_out_the_brightest_tenth_of_a_percent(self):
@@ -133,9 +188,24 @@ class TestFitRadianceCalibration:
         pipeline.backbone.render_chunk = 50
         assert fit_radiance_calibration(pipeline, scene).scale == pytest.approx(TRUTH_FACTOR, rel=1e-5)
 
-    def test_views_are_spread_over_the_capture(self):
-        assert calibration_views(known_scene(exposures=(2.0,) * 3)) == [0, 1, 2]
-        assert calibration_views(known_scene(exposures=(2.0,) * 15)) == [0, 2, 4, 6, 8, 10, 12, 14]
+    def test_a_ray_backbone_renders_rays_per_view_and_a_whole_image_one_every_pixel(self, monkeypatch):
+        monkeypatch.setattr(calibration_module, "RAYS_PER_VIEW", 40)
+        scene = known_scene()
+        pixels = scene.train[0].camera.width * scene.train[0].camera.height
+        assert pixels > 40
+        whole = fit_radiance_calibration(known_pipeline(scene), scene)
+        pipeline = known_pipeline(scene)
+        pipeline.backbone.pixel_batch = 64
+        rays = fit_radiance_calibration(pipeline, scene)
+        assert 5 * 40 * 3 * 0.5 < rays.samples <= 5 * 40 * 3  # 5 views, 40 rays, 3 channels; most usable
+        assert whole.samples > 5 * pixels * 3 * 0.5
+
+    @pytest.mark.parametrize(
+        "views, expected",
+        [(1, [0]), (2, [0, 1]), (3, [0, 1, 2]), (9, [0, 1, 2, 3, 5, 6, 7, 8]), (15, [0, 2, 4, 6, 8, 10, 12, 14])],
+    )
+    def test_views_are_spread_over_the_capture(self, views, expected):
+        assert calibration_views(known_scene(exposures=(2.0,) * views)) == expected
 
 
 class TestDisplayAtEv0:

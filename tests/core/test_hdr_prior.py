@@ -12,7 +12,7 @@ from test_calibration import PHOTO_FACTOR, known_pipeline, known_scene
 
 from mono_hdr_plugin.apps.studio.dataset import capture_response
 from mono_hdr_plugin.apps.studio.scenes import SCENES
-from mono_hdr_plugin.core.exposure import srgb_response
+from mono_hdr_plugin.core.exposure import ExposureConfig, build_view_exposures, srgb_response
 from mono_hdr_plugin.core.losses import log_ratio_loss
 from mono_hdr_plugin.core.metrics import (
     OWN_LDR_PREFIX,
@@ -104,6 +104,29 @@ class TestHdrBasis:
         assert without.startswith("the sRGB response") and "no HDR views" in without
         assert "exposure ratios across views (0.5-8 s)" in without
         assert "exposure ratios" not in hdr_basis(known_scene(exposures=(2.0,) * 5), [False] * 5, None)
+
+    def test_two_exposures_are_ratios_and_float_noise_is_one_exposure(self):
+        two = hdr_basis(known_scene(exposures=(2.0, 2.0, 2.0, 2.0, 8.0)), [False] * 5, None)
+        assert two.endswith("; exposure ratios across views (2-8 s)")
+        noise = (2.0, 2.0, 2.0, 2.0, 2.0 * (1 + 3e-7))  # an exposure time written with fewer digits
+        assert "exposure ratios" not in hdr_basis(known_scene(exposures=noise), [False] * 5, None)
+
+    @pytest.mark.parametrize("unknown, start", [(False, "EXIF times as a start"), (True, "the capture knows no times")])
+    def test_learned_exposures_and_white_balance_are_named(self, unknown, start):
+        scene = known_scene(exposures=(2.0,) * 5)
+        if unknown:
+            scene.metadata["unknown_exposures"] = [view.name for view in scene.train]
+        exposures = build_view_exposures(ExposureConfig(learn_exposure=True, learn_white_balance="off"), scene)
+        basis = hdr_basis(scene, [False] * 5, exposures)
+        assert basis.endswith(f"; exposure ratios across views, learned ({start})")
+        balanced = build_view_exposures(ExposureConfig(learn_exposure=True, learn_white_balance="on"), scene)
+        assert hdr_basis(scene, [False] * 5, balanced) == basis + (
+            "; white balance per view, learned (the HDR keeps the photos' mean balance)"
+        )
+
+    def test_a_view_selection_of_another_length_is_refused(self):
+        with pytest.raises(ValueError):
+            hdr_basis(known_scene(), [True, False], None)
 
     def test_a_fitted_response_is_named(self):
         scene = known_scene(with_truth=False)
