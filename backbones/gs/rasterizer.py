@@ -34,6 +34,8 @@ class ProjectedGaussians:
     gradient densification reads; conics [V,3] (a, b, c) of the inverse 2D covariance; depths
     [V] camera z; opacities [V]; boxes [V,4] int32 pixel ranges (x0, y0, x1, y1), end-exclusive;
     tile_offsets [T+1] and tile_ids [M] int32: the depth-sorted rows (into V) of each tile.
+    width, height: the rendered image's size; frame: (width, height) of the whole image when that is a
+    crop of it (Camera.crop), else None.
     """
 
     index: Tensor
@@ -48,6 +50,7 @@ class ProjectedGaussians:
     width: int
     height: int
     backend: Backend
+    frame: tuple[int, int] | None = None
 
 
 def _camera_arguments(camera: Camera) -> tuple:
@@ -128,6 +131,29 @@ def _as_float32(name: str, tensor: Tensor, shape_tail: tuple[int, ...]) -> Tenso
     return tensor.float().contiguous()
 
 
+def _cut_to_crop(projection: tuple, camera: Camera) -> tuple:
+    """A whole-image projection (index, radii, means2d, conics, depths, boxes) cut to a crop camera's
+    image: the Gaussians whose box meets the crop, their screen positions and boxes in the crop's pixels.
+
+    A crop is projected through its whole image's camera (Camera.uncropped) and cut afterwards, so every
+    footprint is the whole image's: 3DGS evaluates the projection's Jacobian at the mean clamped to 1.3 x
+    the field of view, and the crop's field of view would clamp Gaussians just outside the crop that
+    reach into it, which the whole image does not (tests/gs/test_gs_regions.py). Gaussians are projected
+    in O(N); the rasterising, which costs the pixels, sees the crop's Gaussians and pixels only."""
+    if camera.frame is None:
+        return projection
+    index, radii, means2d, conics, depths, boxes = projection
+    left, top = camera.frame.left, camera.frame.top
+    shift = torch.tensor([left, top, left, top], dtype=torch.int32)
+    limit = torch.tensor([camera.width, camera.height, camera.width, camera.height], dtype=torch.int32)
+    cut = torch.minimum(torch.maximum(boxes - shift, torch.zeros_like(boxes)), limit)
+    keep = ((cut[:, 0] < cut[:, 2]) & (cut[:, 1] < cut[:, 3])).nonzero().squeeze(1)
+    radii = radii.clone()
+    radii[index] *= torch.zeros_like(radii[index]).index_fill_(0, keep, 1)
+    offset = torch.tensor([float(left), float(top)], dtype=means2d.dtype)
+    return index[keep], radii, means2d[keep] - offset, conics[keep], depths[keep], cut[keep].contiguous()
+
+
 def check_backend(backend: str) -> None:
     if backend not in ("kernel", "torch"):
         raise ValueError(f"backend must be 'kernel' or 'torch', got {backend!r}")
@@ -157,16 +183,17 @@ def project_gaussians(
         )
     opacities = opacities.float()
     viewmat = camera.w2c.float().contiguous()
-    intrinsics = _camera_arguments(camera)
+    if camera.pixels is not None:
+        _camera_arguments(camera)  # refuses pixel batches
+    intrinsics = _camera_arguments(camera.uncropped())
     if backend == "kernel":
-        index, radii, means2d, conics, depths, boxes = _ProjectKernel.apply(
-            means, quats, scales, opacities.detach().contiguous(), viewmat, intrinsics
-        )
+        projection = _ProjectKernel.apply(means, quats, scales, opacities.detach().contiguous(), viewmat, intrinsics)
+    else:
+        projection = reference.project_gaussians_torch(means, quats, scales, opacities.detach(), viewmat, *intrinsics)
+    index, radii, means2d, conics, depths, boxes = _cut_to_crop(projection, camera)
+    if backend == "kernel":
         tile_offsets, tile_ids = load_extension().bin_tiles(boxes, depths.detach(), camera.width, camera.height)
     else:
-        index, radii, means2d, conics, depths, boxes = reference.project_gaussians_torch(
-            means, quats, scales, opacities.detach(), viewmat, *intrinsics
-        )
         tile_offsets, tile_ids = reference.bin_tiles_torch(boxes, depths, camera.width, camera.height)
     return ProjectedGaussians(
         index,
@@ -181,6 +208,7 @@ def project_gaussians(
         camera.width,
         camera.height,
         backend,
+        camera.frame_size if camera.frame is not None else None,
     )
 
 

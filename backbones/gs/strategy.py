@@ -255,6 +255,21 @@ def relocation(opacities: Tensor, scales: Tensor, copies: Tensor) -> tuple[Tenso
     return new_o.to(opacities.dtype), (scales.double() * (o / denominator)[:, None]).to(scales.dtype)
 
 
+def ndc_gradient_scale(projected) -> Tensor:
+    """[2] factors taking d loss / d pixel position to the gradient 3DGS thresholds: in normalised device
+    coordinates of the whole frame (pixels * size / 2), of a loss averaged over the whole frame.
+
+    A crop (region training, Camera.crop) renders w x h of a W x H frame: NDC spans the frame, so the
+    factors are W / 2 and H / 2, not w / 2 and h / 2; and the step's loss is a mean over the crop's w * h
+    pixels, each weighted W * H / (w * h) times more than in a whole-frame mean, which w * h / (W * H)
+    undoes. A Gaussian inside the crop then accumulates what a whole-image step would have given it
+    (tests/gs/test_gs_regions.py), and a crop does not move the densification threshold.
+    """
+    frame_width, frame_height = projected.frame or (projected.width, projected.height)
+    share = projected.width * projected.height / (frame_width * frame_height)
+    return torch.tensor([0.5 * frame_width * share, 0.5 * frame_height * share])
+
+
 @dataclass
 class DefaultStrategy:
     """The official 3DGS density control: clone small / split large Gaussians whose view-space
@@ -339,8 +354,7 @@ class DefaultStrategy:
             return
         if projected is not None and projected.means2d.grad is not None:
             index = projected.index
-            # 3DGS thresholds the gradient in normalised device coordinates: pixels * size / 2
-            scale = torch.tensor([0.5 * projected.width, 0.5 * projected.height])
+            scale = ndc_gradient_scale(projected)
             state["grad2d_sum"].index_add_(0, index, (projected.means2d.grad * scale).norm(dim=-1))
             state["visible_count"].index_add_(0, index, torch.ones(index.shape[0]))
             state["max_radii"][index] = torch.maximum(state["max_radii"][index], projected.radii[index].float())

@@ -15,6 +15,16 @@ OPENGL_TO_OPENCV = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0]))
 
 
 @dataclass(frozen=True)
+class Frame:
+    """The whole image a crop camera's image was cut from: its size, and the crop's offset in it."""
+
+    width: int
+    height: int
+    left: int
+    top: int
+
+
+@dataclass(frozen=True)
 class Camera:
     """One pinhole camera.
 
@@ -22,6 +32,10 @@ class Camera:
     integer + 0.5). near/far bound the scene along the viewing ray for volume renderers.
     pixels: optional [N, 2] (x, y) pixel-centre coordinates; when set, a backbone renders
     only these pixels (ray batches) and images come back as [N, C] instead of [H, W, C].
+    frame: the whole image when this camera renders a crop of it (`crop`; region training), None for a
+    whole image. What is defined on the whole image reads it: 3DGS projects through the whole camera
+    (`uncropped`; its footprints clamp to the whole field of view) and scales its densification gradient
+    by `frame_size`.
     """
 
     c2w: Tensor
@@ -34,6 +48,7 @@ class Camera:
     near: float = 0.01
     far: float = 100.0
     pixels: Tensor | None = None
+    frame: "Frame | None" = None
 
     def __post_init__(self):
         if tuple(self.c2w.shape) != (4, 4):
@@ -76,11 +91,52 @@ class Camera:
         """Leading shape of a rendered image: (H, W) or (N,) for a pixel batch."""
         return (self.height, self.width) if self.pixels is None else (self.pixels.shape[0],)
 
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """(width, height) of the whole image this camera's image is (a crop of)."""
+        return (self.width, self.height) if self.frame is None else (self.frame.width, self.frame.height)
+
     def with_pixels(self, pixels: Tensor | None) -> "Camera":
         return replace(self, pixels=pixels)
 
+    def crop(self, left: int, top: int, width: int, height: int) -> "Camera":
+        """The camera whose image is pixels [top, top + height) x [left, left + width) of this one's:
+        the principal point shifted by the offset, the same pose and focal lengths, `frame` the whole
+        image (a crop of a crop is a crop of the same whole image)."""
+        if min(left, top) < 0 or min(width, height) <= 0:
+            raise ValueError(f"a crop needs a non-negative offset and a positive size, got {left, top, width, height}")
+        if left + width > self.width or top + height > self.height:
+            raise ValueError(f"crop {width}x{height} at ({left}, {top}) leaves the {self.width}x{self.height} image")
+        outer = self.frame or Frame(self.width, self.height, 0, 0)
+        return replace(
+            self,
+            cx=self.cx - left,
+            cy=self.cy - top,
+            width=width,
+            height=height,
+            pixels=None,
+            frame=Frame(outer.width, outer.height, outer.left + left, outer.top + top),
+        )
+
+    def uncropped(self) -> "Camera":
+        """The whole image's camera of a crop camera; a whole-image camera itself."""
+        if self.frame is None:
+            return self
+        frame = self.frame
+        return replace(
+            self,
+            cx=self.cx + frame.left,
+            cy=self.cy + frame.top,
+            width=frame.width,
+            height=frame.height,
+            pixels=None,
+            frame=None,
+        )
+
     def scaled(self, factor: float) -> "Camera":
         """The same camera with the image resized by `factor` (0.5 halves the resolution)."""
+        if self.frame is not None:
+            raise ValueError("a crop camera cannot be scaled: scale the whole camera, then crop it")
         return replace(
             self,
             fx=self.fx * factor,

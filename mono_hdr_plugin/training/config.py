@@ -11,10 +11,20 @@ import tyro
 from mono_hdr_plugin.core.camera_optimizer import CameraOptConfig
 from mono_hdr_plugin.core.configs import ABSENT_IN_SAVED_CONFIG, config_from_dict
 from mono_hdr_plugin.core.exposure import ExposureConfig
-from mono_hdr_plugin.core.validation import NON_NEGATIVE, POSITIVE, SEED, FlagError, at_least, between, check_flags
+from mono_hdr_plugin.core.validation import (
+    MAX_IMAGE_SIDE,
+    NON_NEGATIVE,
+    POSITIVE,
+    SEED,
+    FlagError,
+    at_least,
+    between,
+    check_flags,
+)
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.layouts import LAYOUTS
 from mono_hdr_plugin.methods.base import METHODS, MethodConfig, method_config_for
+from mono_hdr_plugin.training.regions import MIN_REGION_PIXELS
 
 TRAIN_OUTPUTS = ("checkpoints", "renders", "metrics.json", "viewer", "refined_poses.json")
 """What `mono-hdr train` writes in --out; --overwrite removes exactly these."""
@@ -67,6 +77,11 @@ class TrainConfig:
     pyramid_share: float = 0.5
     """With --pyramid-levels above 1: the share of the run trained below full size, split evenly among
     the coarser levels, coarsest first."""
+    region_pixels: int | None = None
+    """Region training: a 3DGS step renders and scores a random crop of about this many pixels of its view
+    instead of the whole image (about sqrt a side; a view, or pyramid level, with fewer pixels trains
+    whole), so a step costs the same at any image size. None: whole images. Refused for a backbone that
+    trains on ray batches (NeRF). Off by default until curves choose a budget (docs/sizes.md)."""
     checkpoint_every: int = 1000
     """Write OUT/checkpoints/latest.pt every N steps (and at the end)."""
     max_eval_views: int | None = None
@@ -92,6 +107,7 @@ class TrainConfig:
         "checkpoint_every": at_least(1),
         "pyramid_levels": between(1, 6),
         "pyramid_share": between(0, 1, high_open=True),
+        "region_pixels": between(MIN_REGION_PIXELS, MAX_IMAGE_SIDE**2),
         "max_eval_views": at_least(1),
         "nan_patience": at_least(1),
         "viewer_port": between(0, 65535),

@@ -46,8 +46,8 @@ def seconds_left(trainer: Trainer) -> float | None:
     """Estimated seconds until training ends: the steps left (to --max-steps, or those that fit in what is
     left of --max-seconds) at the mean step time so far, plus the evaluations still due under --eval-every
     at the mean time of those measured. None before the first step. Coarse-to-fine steps are counted at
-    their cost (a 3DGS step at 1/4 the side renders 1/16 of the pixels), so the cheap first steps of a
-    pyramid do not promise a short run."""
+    their cost (a 3DGS step at 1/4 the side renders 1/16 of the pixels; with --region-pixels no more than
+    the region's, regions.level_costs), so the cheap first steps of a pyramid do not promise a short run."""
     if trainer.step == 0 or trainer.train_seconds <= 0:
         return None
     pyramid, run_length = trainer.pyramid, trainer.run_length

@@ -15,6 +15,7 @@ import torch
 from mono_hdr_plugin.core.validation import FlagError
 from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.loading import downscale_image, downscaled_camera
+from mono_hdr_plugin.training.regions import check_region_training, level_costs
 
 MIN_LEVEL_SIDE = 16
 """Smallest image side a level may have: the D-SSIM loss needs 11 px windows, and fewer pixels teach little."""
@@ -49,12 +50,17 @@ def pyramid_level(step: int, run_length: int, levels: int, coarse_share: float) 
     return levels - 1 - int(step * (levels - 1) // coarse_steps)
 
 
-def relative_cost(start: int, stop: int, run_length: int, levels: int, coarse_share: float) -> float:
+def relative_cost(
+    start: int, stop: int, run_length: int, levels: int, coarse_share: float, costs: list[float] | None = None
+) -> float:
     """Cost of steps start .. stop-1 of a whole-image backbone in full-size steps: a step at level k
-    renders 4^-k of the pixels (pyramid_level's levels, counted per level rather than step by step)."""
+    costs costs[k], by default 4^-k, the share of the pixels it renders (regions.level_costs with
+    --region-pixels); pyramid_level's levels, counted per level rather than step by step."""
     coarse_steps = coarse_share * run_length
     if levels <= 1 or coarse_steps <= 0:
         return float(max(stop - start, 0))
+    if costs is None:
+        costs = [4.0**-level for level in range(levels)]
     cost = 0.0
     for level in range(levels):
         if level == 0:  # from the end of the coarse share on
@@ -62,7 +68,7 @@ def relative_cost(start: int, stop: int, run_length: int, levels: int, coarse_sh
         else:  # pyramid_level: levels - 1 - floor(step * (levels - 1) / coarse_steps) == level
             first = math.ceil((levels - 1 - level) * coarse_steps / (levels - 1))
             last = math.ceil((levels - level) * coarse_steps / (levels - 1))
-        cost += max(0, min(stop, last) - max(start, first)) * 4.0**-level
+        cost += max(0, min(stop, last) - max(start, first)) * costs[level]
     return cost
 
 
@@ -85,7 +91,15 @@ def downscaled_view(view: View, factor: int) -> View:
 class ImagePyramid:
     """The training views at the level a step trains at; only the current level's images are held."""
 
-    def __init__(self, views: list[View], levels: int, coarse_share: float, whole_images: bool = True):
+    def __init__(
+        self,
+        views: list[View],
+        levels: int,
+        coarse_share: float,
+        whole_images: bool = True,
+        region_pixels: int | None = None,
+    ):
+        check_region_training(region_pixels, whole_images)
         side = min((min(view.camera.width, view.camera.height) for view in views), default=0)
         if levels > 1 and side // 2 ** (levels - 1) < MIN_LEVEL_SIDE:
             most = max(1, (side // MIN_LEVEL_SIDE).bit_length())
@@ -96,6 +110,9 @@ class ImagePyramid:
         self.views, self.levels, self.coarse_share = views, levels, coarse_share
         self.whole_images = whole_images
         """The backbone renders whole images (a coarse step costs less) rather than ray batches (the same)."""
+        full_pixels = sum(view.camera.width * view.camera.height for view in views) / max(len(views), 1)
+        self.level_costs = level_costs(full_pixels, levels, region_pixels)
+        """A step's cost at each level in full-size steps (--region-pixels caps the pixels a step renders)."""
         self.level = 0
         self.level_views: dict[int, View] = {}
 
@@ -106,7 +123,7 @@ class ImagePyramid:
         """Cost of steps start .. stop-1 in full-size steps."""
         if not self.whole_images:
             return float(max(stop - start, 0))
-        return relative_cost(start, stop, run_length, self.levels, self.coarse_share)
+        return relative_cost(start, stop, run_length, self.levels, self.coarse_share, self.level_costs)
 
     def view(self, index: int, level: int) -> View:
         """Training view `index` at `level` (made on first use; a new level drops the previous one's)."""

@@ -119,10 +119,9 @@ class Trainer:
             group["base_lr"] = group["lr"]
         self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
-        levels = config.pyramid_levels
-        if levels is None:
-            levels = automatic_levels(scene.train, self.backbone.coarse_to_fine_pays)
-        self.pyramid = ImagePyramid(scene.train, levels, config.pyramid_share, self.backbone.pixel_batch is None)
+        levels = config.pyramid_levels or automatic_levels(scene.train, self.backbone.coarse_to_fine_pays)
+        whole_images, regions = self.backbone.pixel_batch is None, config.region_pixels
+        self.pyramid = ImagePyramid(scene.train, levels, config.pyramid_share, whole_images, regions)
         self.image_level: int | None = None
         """Pyramid level the backbone was last told (None: not yet; a resumed run tells it at its first step)."""
         self.view_order: list[int] = []
@@ -176,7 +175,8 @@ class Trainer:
 
     def _batch(self, view: View, index: int) -> tuple[Camera, Targets]:
         """The step's camera and targets; on a view without HDR supervision, L_prior's target too."""
-        camera, targets = training_batch(view, self.backbone.pixel_batch, self.hdr_views[index], self.generator)
+        batch, regions = self.backbone.pixel_batch, self.config.region_pixels
+        camera, targets = training_batch(view, batch, self.hdr_views[index], self.generator, regions)
         if self.prior_response is not None and targets.hdr is None:
             exposures = self.pipeline.exposures
             relative = 1.0 if exposures is None else torch.exp(exposures.log_scale(index)).detach()
@@ -226,8 +226,7 @@ class Trainer:
         record: dict[str, Any] = {name: value.item() for name, value in terms.items()}
         record["loss"] = loss.item()
         record["ldr_psnr"] = psnr(output.ldr.detach().clamp(0, 1), targets.ldr)
-        record["skipped"] = bool(bad)
-        record["bad_tensors"] = bad
+        record.update(skipped=bool(bad), bad_tensors=bad)
         return record
 
     def fit(self, hooks: Sequence[TrainingHook] = ()) -> None:

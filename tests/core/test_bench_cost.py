@@ -75,6 +75,33 @@ class TestCostRow:
         peaks = [row["peak_mib"][phase] for phase in ("data", "training", "render", "evaluation")]
         assert peaks == sorted(peaks) and peaks[0] > 0
 
+    def test_region_pixels_train_the_row_on_crops(self, tmp_path, voxel_scene, monkeypatch):
+        tiny = register_backbone.VoxelGridConfig(resolution=8, samples_per_ray=8)
+        monkeypatch.setattr(register_backbone.VoxelGridBackbone, "presets", classmethod(lambda cls: {"tiny": tiny}))
+        monkeypatch.setattr(cost, "cached_scene", lambda name, exposure_index: voxel_scene)
+        sizes = []
+        original = cost.build_run
+
+        def recording(*args, **kwargs):
+            trainer = original(*args, **kwargs)
+            forward = trainer.pipeline.forward
+
+            def recorded(camera, *rest, **options):
+                sizes.append(camera.output_shape)
+                return forward(camera, *rest, **options)
+
+            trainer.pipeline.forward = recorded
+            return trainer
+
+        monkeypatch.setattr(cost, "build_run", recording)
+        caller_threads = torch.get_num_threads()
+        config = BenchCostConfig(out=tmp_path, warmup_steps=0, timed_steps=2, threads=1, region_pixels=144)
+        try:
+            cost_row("voxel-grid", 24, 5, config)
+        finally:
+            torch.set_num_threads(caller_threads)
+        assert sizes[:2] == [(12, 12), (12, 12)]  # 144 of the 24 x 24 pixels a step
+
 
 def measured(backbone: str, side: int, views: int, ms: float) -> dict:
     return {
@@ -88,6 +115,7 @@ def measured(backbone: str, side: int, views: int, ms: float) -> dict:
         "evaluate_seconds": 1.0,
         "data_mib": 10.0,
         "peak_mib": {"data": 100.0, "training": 200.0, "render": 210.0, "evaluation": 220.0},
+        "backbone_statistics": {"gaussians": 1000},
     }
 
 
@@ -98,13 +126,16 @@ class TestCostReport:
             store.add(row)
         store.add({"key": "gs|512px|18views", "status": "failed", "error": "MemoryError()"})
         write_cost_report(store, tmp_path)
-        lines = (tmp_path / "cost.md").read_text().splitlines()[2:]
+        header, _, *lines = (tmp_path / "cost.md").read_text().splitlines()
+        assert header == "Training steps on whole images."
+        lines = lines[2:]
         cells = [[cell.strip() for cell in line.strip("|").split("|")] for line in lines]
         assert [row[:7] for row in cells] == [
             ["gs", "128", "18", "50", "1.00", "1.0", "1.00"],
             ["gs", "256", "18", "150", "3.00", "4.0", "1.00"],
             ["gs", "256", "108", "300", "1.00", "1.0", "2.00"],
         ]
+        assert all(row[7] == "1000" for row in cells)  # the Gaussians the step times were taken at
         assert (tmp_path / "cost.png").stat().st_size > 0
 
 

@@ -133,19 +133,27 @@ class TestTimeLeft:
 class TestTimeLeftOfAPyramid:
     """3 levels over 8 steps, the first half coarse: levels 2, 2, 1, 1, 0, 0, 0, 0."""
 
-    def trainer_after_two_steps(self, whole_images: bool) -> SimpleNamespace:
+    def trainer_after_two_steps(
+        self, whole_images: bool, region_pixels: int | None = None, train_seconds: float = 0.125
+    ) -> SimpleNamespace:
         views = register_backbone.make_capture(size=64, views=2).train
         return SimpleNamespace(
             step=2,
-            train_seconds=0.125,  # two steps at 1/16 of the pixels of a 1 s full-size step
+            train_seconds=train_seconds,  # default: two steps at 1/16 of the pixels of a 1 s full-size step
             run_length=8,
-            pyramid=ImagePyramid(views, 3, 0.5, whole_images),
+            pyramid=ImagePyramid(views, 3, 0.5, whole_images, region_pixels),
             config=SimpleNamespace(max_seconds=None, eval_every=0),
             evaluation_seconds=[],
         )
 
     def test_coarse_steps_do_not_promise_a_short_run(self):
         assert seconds_left(self.trainer_after_two_steps(True)) == pytest.approx(2 * 0.25 + 4 * 1.0)
+
+    def test_regions_cap_the_pixels_of_every_level(self):
+        """--region-pixels 1024 on 64 px views: levels of 256, 1024 and 1024 px; two 16 px steps at a
+        quarter of a 1 s full-size step, then 2 + 4 steps at 1 s."""
+        trainer = self.trainer_after_two_steps(True, region_pixels=1024, train_seconds=0.5)
+        assert seconds_left(trainer) == pytest.approx(6 * 1.0)
 
     def test_ray_batches_cost_the_same_at_every_level(self):
         assert seconds_left(self.trainer_after_two_steps(False)) == pytest.approx(6 * 0.0625)

@@ -37,7 +37,12 @@ def fake_projection(n: int, grad_rows: slice, width: int, height: int):
     means2d.grad = torch.zeros(n, 2)
     means2d.grad[grad_rows] = 1.0
     return SimpleNamespace(
-        index=torch.arange(n), means2d=means2d, radii=torch.ones(n, dtype=torch.int32), width=width, height=height
+        index=torch.arange(n),
+        means2d=means2d,
+        radii=torch.ones(n, dtype=torch.int32),
+        width=width,
+        height=height,
+        frame=None,  # a whole image (ProjectedGaussians.frame)
     )
 
 

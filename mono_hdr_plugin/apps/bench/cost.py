@@ -30,6 +30,7 @@ from mono_hdr_plugin.apps.bench.runs import (
 from mono_hdr_plugin.core.registry import register_benchmark
 from mono_hdr_plugin.core.validation import MAX_IMAGE_SIDE, at_least, between
 from mono_hdr_plugin.data.dataset import SceneData, View
+from mono_hdr_plugin.training.regions import MIN_REGION_PIXELS
 
 
 @register_benchmark("cost")
@@ -52,6 +53,8 @@ class BenchCostConfig:
     """Steps whose median time is reported."""
     threads: int = 2
     """torch threads per row."""
+    region_pixels: int | None = None
+    """Train on random crops of about this many pixels (train's --region-pixels; 3DGS only). None: whole images."""
 
     flag_rules: ClassVar = {
         "sizes": between(16, MAX_IMAGE_SIDE),
@@ -59,6 +62,7 @@ class BenchCostConfig:
         "warmup_steps": at_least(0),
         "timed_steps": at_least(1),
         "threads": at_least(1),
+        "region_pixels": between(MIN_REGION_PIXELS, MAX_IMAGE_SIDE**2),
     }
 
     def run(self) -> dict[str, Any]:
@@ -101,7 +105,8 @@ def cost_row(backbone: str, side: int, train_views: int, config: BenchCostConfig
     scene = resized_scene(cached_scene(config.scene, 1), side, train_views)
     peaks = {"data": peak_memory_mib()}
     budget = RunBudget(steps=config.warmup_steps + config.timed_steps, max_eval_views=1)
-    full_size = RunSpec(backbone=backbone, scene=config.scene, overrides=(("pyramid_levels", 1),))  # no coarse level
+    overrides = (("pyramid_levels", 1), ("region_pixels", config.region_pixels))  # no coarse level
+    full_size = RunSpec(backbone=backbone, scene=config.scene, overrides=overrides)
     trainer = build_run(full_size, scene, config.out / "runs", budget)
     trainer.fit([])
     step_seconds = list(trainer.recent_step_seconds)[config.warmup_steps :]
@@ -132,7 +137,8 @@ def cost_row(backbone: str, side: int, train_views: int, config: BenchCostConfig
 
 def bench_cost(config: BenchCostConfig) -> dict[str, Any]:
     grid = [(b, s, v) for b in config.backbones for s in config.sizes for v in config.views]
-    measure = {name: getattr(config, name) for name in ("scene", "warmup_steps", "timed_steps", "threads")}
+    names = ("scene", "warmup_steps", "timed_steps", "threads", "region_pixels")
+    measure = {name: getattr(config, name) for name in names}
     store = RowStore(config.out / "cost.json", measure)  # rows of the same measure are kept; new cells added
     pending = [cell for cell in grid if row_key(*cell) not in store.rows]
     context = multiprocessing.get_context("spawn")  # a fresh process per row: its peak memory is its own
@@ -155,11 +161,14 @@ def write_cost_report(store: RowStore, out: Path) -> None:
         (r for r in store.rows.values() if r["status"] == "ok"),
         key=lambda r: (r["backbone"], r["train_views"], r["side"]),
     )
+    region = store.settings.get("region_pixels")
     lines = [
+        f"Training steps on {'whole images' if region is None else f'random crops of about {region} pixels'}.",
+        "",
         "| backbone | side | views | ms / step | step / smallest side's | pixels / smallest side's "
-        "| step / fewest views' | render s | evaluate s | data MiB "
+        "| step / fewest views' | Gaussians | render s | evaluate s | data MiB "
         "| peak MiB (data / training / render / evaluation) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         smallest = next(r for r in rows if r["backbone"] == row["backbone"] and r["train_views"] == row["train_views"])
@@ -171,7 +180,8 @@ def write_cost_report(store: RowStore, out: Path) -> None:
         lines.append(
             f"| {row['backbone']} | {row['side']} | {row['train_views']} | {row['ms_per_step']:.0f} | "
             f"{fmt(row['ms_per_step'] / smallest['ms_per_step'])} | {fmt((row['side'] / smallest['side']) ** 2, 1)} | "
-            f"{fmt(row['ms_per_step'] / fewest['ms_per_step'])} | {row['render_seconds']:.2f} | "
+            f"{fmt(row['ms_per_step'] / fewest['ms_per_step'])} | {row['backbone_statistics'].get('gaussians', '')} | "
+            f"{row['render_seconds']:.2f} | "
             f"{row['evaluate_seconds']:.2f} | {row['data_mib']:.0f} | {peaks} |"
         )
     (out / "cost.md").write_text("\n".join(lines) + "\n")
