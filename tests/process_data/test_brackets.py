@@ -7,6 +7,7 @@ import colour
 import numpy as np
 import pytest
 from PIL import Image
+from scipy.ndimage import gaussian_filter
 
 from mono_hdr_plugin.data.errors import DatasetError
 from mono_hdr_plugin.data.photos import brackets
@@ -357,6 +358,25 @@ class TestAlignment:
         glare = darker.reshape(-1, 3).copy()
         glare[well_exposed[::10]] = 1.0
         assert not lines_up(glare.reshape(darker.shape), brighter, gamma_response())
+
+    @pytest.mark.parametrize("dy, dx", [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1)])
+    def test_one_pixel_away_on_smooth_texture_is_another_viewpoint(self, dy, dx):
+        """Texture correlated over a few pixels: one pixel off, the ratio spreads less than four pixels
+        off would (the far test passes), and only the pair's agreement at a one-pixel shift in the
+        right direction gives it away."""
+        noise = gaussian_filter(np.random.default_rng(0).random((60, 76)), 2.0)
+        texture = 1.0 + (noise - noise.min()) / (noise.max() - noise.min())
+        wide = linear_scene(60, 76, stops_range=6.0) * texture[..., None]
+        darker = photograph(wide[4:52, 4:68], 1.0)
+        assert lines_up(darker, photograph(wide[4:52, 4:68], 4.0), gamma_response())
+        moved = photograph(wide[4 + dy : 52 + dy, 4 + dx : 68 + dx], 4.0)
+        assert not lines_up(darker, moved, gamma_response())
+
+    def test_a_longer_exposure_clipped_over_most_of_the_frame_still_lines_up(self):
+        """Only the pixels both photos record count: the clipped ones would swamp the ratio's median."""
+        darker, brighter = photograph(textured_scene(), 1.0), photograph(textured_scene(), 32.0)
+        assert (brighter >= 0.9).any(-1).mean() > 0.6
+        assert lines_up(darker, brighter, gamma_response())
 
     def test_no_shared_pixels_is_no_evidence(self):
         """Where the longer exposure records well the shorter is black, and the reverse: nothing to compare."""
