@@ -310,6 +310,14 @@ class TestAlignment:
         assert order == [0, 1, 2, 3]
         assert aligned_members(photos, order, 1, gamma_response()) == [0, 1, 2]
 
+    def test_the_walk_goes_outwards_from_the_start(self):
+        """The darkest photo is of something else: walking down from the third, the second is kept first
+        and the walk stops at the first; walking up from the darkest would stop at once."""
+        exposures = [1.0, 4.0, 16.0, 64.0]
+        photos = [photograph(textured_scene(), t) for t in exposures]
+        photos[0] = photograph(textured_scene()[::-1, ::-1].copy(), exposures[0])
+        assert aligned_members(photos, [0, 1, 2, 3], 2, gamma_response()) == [1, 2, 3]
+
     @pytest.mark.parametrize("seed", [0, 1, 2])
     def test_the_dim_end_of_a_jpeg_bracket_is_kept(self, seed):
         # A bulb (a sharp disc) and its glow on a dark wall, 3 stops apart, with sensor noise and
