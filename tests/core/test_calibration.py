@@ -2,6 +2,7 @@
 display it sets. Scenes are built on the known render (known_render.py), whose HDR is a closed form,
 so every expected scale is a number chosen here."""
 
+import dataclasses
 import math
 
 import pytest
@@ -114,11 +115,12 @@ class TestFitScale:
         scale, _ = median_log_ratio(4.0 * prediction, prediction)
         assert scale == pytest.approx(4.0, rel=1e-12)
 
-    @pytest.mark.parametrize("exposed, expected", [(MIN_SAMPLES, 2.0), (MIN_SAMPLES - 1, 10.0)])
-    def test_the_well_exposed_fit_needs_min_samples_usable_pixels(self, exposed, expected):
+    @pytest.mark.parametrize("exposed, expected", [(64, 2.0), (63, 10.0)])
+    def test_the_well_exposed_fit_needs_64_usable_pixels(self, exposed, expected):
         """Well-exposed pixels say 2x, the clipped ones (more of them) 10x: the well-exposed median
-        wins from exactly MIN_SAMPLES usable pixels on; below, every pixel counts and 10x wins."""
-        clipped = 3 * MIN_SAMPLES
+        wins from exactly 64 usable pixels on; below, every pixel counts and 10x wins."""
+        assert MIN_SAMPLES == 64
+        clipped = 3 * 64
         photo = torch.cat([torch.full((exposed, 3), 0.5), torch.ones(clipped, 3)])
         prediction = torch.ones(exposed + clipped, 3)
         prediction[:exposed, 1:] = 0.0  # one usable channel per well-exposed pixel: exposed samples, not 3x
@@ -214,6 +216,17 @@ class TestFitRadianceCalibration:
         )
         full = pipeline.render(view.camera, view.exposure).hdr
         torch.testing.assert_close(hdr, full[rows, cols])
+
+    def test_a_view_that_is_not_square_is_sampled_at_its_own_pixels(self):
+        def shorter(view: View) -> View:
+            camera = dataclasses.replace(view.camera, height=view.camera.height - 6)
+            hdr = model_hdr(camera)
+            photo = srgb_encode(PHOTO_FACTOR * hdr * view.exposure / 2.0).clamp(0.0, 1.0)
+            return dataclasses.replace(view, camera=camera, image=photo, hdr=TRUTH_FACTOR * hdr)
+
+        square = known_scene()
+        scene = dataclasses.replace(square, train=[shorter(v) for v in square.train], test=[shorter(square.test[0])])
+        assert fit_radiance_calibration(known_pipeline(scene), scene).scale == pytest.approx(TRUTH_FACTOR, rel=1e-5)
 
     def test_per_view_exposures_are_the_models(self):
         """Learned exposures start at the views' times; with 4 of 5 views away from the reference
