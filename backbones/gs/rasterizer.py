@@ -147,9 +147,10 @@ def _cut_to_crop(projection: tuple, camera: Camera) -> tuple:
     shift = torch.tensor([left, top, left, top], dtype=torch.int32)
     limit = torch.tensor([camera.width, camera.height, camera.width, camera.height], dtype=torch.int32)
     cut = torch.minimum(torch.maximum(boxes - shift, torch.zeros_like(boxes)), limit)
-    keep = ((cut[:, 0] < cut[:, 2]) & (cut[:, 1] < cut[:, 3])).nonzero().squeeze(1)
+    meets = (cut[:, 0] < cut[:, 2]) & (cut[:, 1] < cut[:, 3])
+    keep = meets.nonzero().squeeze(1)
     radii = radii.clone()
-    radii[index] *= torch.zeros_like(radii[index]).index_fill_(0, keep, 1)
+    radii[index[~meets]] = 0  # off the crop: not visible in this step, as culled Gaussians are
     offset = torch.tensor([float(left), float(top)], dtype=means2d.dtype)
     return index[keep], radii, means2d[keep] - offset, conics[keep], depths[keep], cut[keep].contiguous()
 
