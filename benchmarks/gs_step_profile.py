@@ -5,14 +5,23 @@ budget), then times each part of a step on its own with that step's real sizes (
 seconds of `--repeats` runs, one torch thread unless --threads says otherwise), and the
 whole step. Prints a Markdown table; `--out FILE` writes it too.
 
+`--side N` resizes the scene's views to N x N pixels (bilinear, as `bench cost` does: the step's
+cost depends on the pixel count, not on the detail the pixels hold); `--region-pixels N` trains and
+times steps on crops of about N pixels (train's --region-pixels), the parts on a crop that sees
+the median number of Gaussians of nine random ones. Both
+train full-size steps only (one pyramid level), as `bench cost` does.
+
     python benchmarks/gs_step_profile.py --scene demo --warmup 300 --repeats 11 \\
         --out benchmarks/results/gs_step_profile.md
+    python benchmarks/gs_step_profile.py --scene demo --side 1600 --region-pixels 16384 \\
+        --out benchmarks/results/regions/gs_step_profile_1600.md
 """
 
 import os
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -21,11 +30,14 @@ from backbones.gs import GAUSSIAN_PARAMETERS, GaussianBackbone
 from backbones.gs.rasterizer import project_gaussians, rasterize
 from backbones.gs.sh import visible_colors
 from mono_hdr_plugin.apps.bench import script_args as args_of
+from mono_hdr_plugin.apps.bench.cost import resized_scene
 from mono_hdr_plugin.core.losses import l1_dssim_loss
 from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.data.config import DataConfig
+from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.loading import load_scene
 from mono_hdr_plugin.training.config import train_config_for
+from mono_hdr_plugin.training.regions import random_region
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -39,9 +51,11 @@ def cpu_median(function, repeats: int) -> float:
     return statistics.median(times)
 
 
-def warmed_trainer(scene_name: str, warmup: int) -> Trainer:
+def warmed_trainer(scene_name: str, warmup: int, side: int | None, region_pixels: int | None) -> Trainer:
     """Mono-HDR-GS (cpu preset) trained `warmup` steps, so the Gaussians reach their budget."""
     scene = load_scene(DataConfig(scene=scene_name))
+    if side is not None:
+        scene = resized_scene(scene, side, len(scene.train))
     preset = GaussianBackbone.presets()["cpu"]
     config = train_config_for(type(preset))(
         backbone=preset,
@@ -50,6 +64,8 @@ def warmed_trainer(scene_name: str, warmup: int) -> Trainer:
         save_renders=False,
         checkpoint_every=10**9,
         max_steps=10 * warmup,
+        pyramid_levels=1,
+        region_pixels=region_pixels,
     )
     trainer = Trainer(config, "gs", scene)
     for _ in range(warmup):
@@ -57,10 +73,38 @@ def warmed_trainer(scene_name: str, warmup: int) -> Trainer:
     return trainer
 
 
-def rasteriser_parts(trainer: Trainer, zero: Callable[[], None]) -> tuple[list[tuple[str, Callable[[], None]]], int]:
-    """Projection, SH colours and compositing of training view 0, each forward + backward; and how
-    many Gaussians that view sees."""
-    backbone, camera = trainer.backbone, trainer.scene.train[0].camera
+def profiled_view(trainer: Trainer, region_pixels: int | None, draws: int = 9) -> View:
+    """Training view 0, or with region_pixels the crop (of `draws` random ones, seed 0) that sees the
+    median number of Gaussians: what a typical step renders (a crop of plain wall sees a handful)."""
+    view = trainer.scene.train[0]
+    camera = view.camera
+    if region_pixels is None or camera.width * camera.height <= region_pixels:
+        return view
+    backbone, generator = trainer.backbone, torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        activated = (
+            backbone.means,
+            backbone.quats,
+            torch.exp(backbone.log_scales),
+            torch.sigmoid(backbone.opacity_logits),
+        )
+        crops = []
+        for _ in range(draws):
+            left, top, width, height = random_region(camera.width, camera.height, region_pixels, generator)
+            crop = camera.crop(left, top, width, height)
+            crops.append((project_gaussians(*activated, crop).index.numel(), left, top, crop))
+    _, left, top, crop = sorted(crops, key=lambda entry: entry[0])[draws // 2]
+    box = slice(top, top + crop.height), slice(left, left + crop.width)
+    hdr = None if view.hdr is None else view.hdr[box]
+    return replace(view, camera=crop, image=view.image[box], hdr=hdr)
+
+
+def rasteriser_parts(
+    trainer: Trainer, view: View, zero: Callable[[], None]
+) -> tuple[list[tuple[str, Callable[[], None]]], int]:
+    """Projection, SH colours and compositing of `view`, each forward + backward; and how many
+    Gaussians that view sees."""
+    backbone, camera = trainer.backbone, view.camera
     g = {name: getattr(backbone, name) for name in GAUSSIAN_PARAMETERS}
 
     def activated(detach: bool) -> tuple:
@@ -100,10 +144,10 @@ def rasteriser_parts(trainer: Trainer, zero: Callable[[], None]) -> tuple[list[t
 
 
 def method_and_optimiser_parts(
-    trainer: Trainer, visible: int, zero: Callable[[], None]
+    trainer: Trainer, view: View, visible: int, zero: Callable[[], None]
 ) -> list[tuple[str, Callable[[], None]]]:
     """L2H-CC, H2L-CC with the losses, Adam and the MCMC strategy's per-step work."""
-    backbone, method, view = trainer.backbone, trainer.method, trainer.scene.train[0]
+    backbone, method = trainer.backbone, trainer.method
     ldr_colours = torch.rand(visible, 3, requires_grad=True)
     hdr_image = (torch.rand(view.camera.height, view.camera.width, 3) * 10).requires_grad_()
 
@@ -140,9 +184,12 @@ def method_and_optimiser_parts(
     ]
 
 
-def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str, float]], dict]:
-    trainer = warmed_trainer(scene_name, warmup)
-    backbone, camera = trainer.backbone, trainer.scene.train[0].camera
+def profile(
+    scene_name: str, warmup: int, repeats: int, side: int | None, region_pixels: int | None
+) -> tuple[list[tuple[str, float]], dict]:
+    trainer = warmed_trainer(scene_name, warmup, side, region_pixels)
+    backbone, view = trainer.backbone, profiled_view(trainer, region_pixels)
+    camera = view.camera
 
     def zero():
         for name in GAUSSIAN_PARAMETERS:
@@ -150,8 +197,8 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         for value in trainer.method.parameters():
             value.grad = None
 
-    parts, visible = rasteriser_parts(trainer, zero)
-    parts += method_and_optimiser_parts(trainer, visible, zero)
+    parts, visible = rasteriser_parts(trainer, view, zero)
+    parts += method_and_optimiser_parts(trainer, view, visible, zero)
     seconds = [(name, cpu_median(function, repeats)) for name, function in parts]
     step = cpu_median(trainer.train_step, repeats)
     facts = {
@@ -159,6 +206,7 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
         "gaussians": backbone.num_gaussians,
         "visible": visible,
         "pixels": camera.width * camera.height,
+        "frame": camera.frame_size,
         "step": step,
         "threads": torch.get_num_threads(),
         "load": os.getloadavg()[0],
@@ -167,8 +215,11 @@ def profile(scene_name: str, warmup: int, repeats: int) -> tuple[list[tuple[str,
 
 
 def table(seconds: list[tuple[str, float]], facts: dict) -> str:
+    width, height = facts["frame"]
+    rendered = "the whole view" if facts["pixels"] == width * height else "a crop of the view"
     lines = [
-        f"Scene `{facts['scene']}`, {facts['pixels']} pixels, {facts['gaussians']:,} Gaussians of which "
+        f"Scene `{facts['scene']}` at {width} x {height} px; a step renders {rendered}, "
+        f"{facts['pixels']} pixels; {facts['gaussians']:,} Gaussians of which "
         f"{facts['visible']:,} visible in the view; {facts['threads']} torch thread(s), median CPU time; "
         f"1-minute load average {facts['load']:.1f} when measured.",
         "",
@@ -192,10 +243,12 @@ def main() -> None:
     args_of.add_count(parser, "--warmup", 300, "training steps before timing")
     args_of.add_count(parser, "--repeats", 15, "timed steps (median)")
     args_of.add_threads(parser, 1)
+    parser.add_argument("--side", type=int, help="resize the views to SIDE x SIDE pixels")
+    parser.add_argument("--region-pixels", type=int, help="train on crops of about this many pixels")
     parser.add_argument("--out", type=Path, help="also write the table here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    text = table(*profile(args.scene, args.warmup, args.repeats))
+    text = table(*profile(args.scene, args.warmup, args.repeats, args.side, args.region_pixels))
     print(text)
     if args.out:
         args.out.write_text(text)
