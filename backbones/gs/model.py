@@ -204,7 +204,10 @@ class GaussianBackbone(Backbone):
             "quats": c.lr_quats,
             "opacity_logits": c.lr_opacities,
         }
-        groups = [{"name": name, "params": [getattr(self, name)], "lr": rates[name]} for name in GAUSSIAN_PARAMETERS]
+        groups = [
+            {"name": name, "params": [getattr(self, name)], "lr": rates[name], "per_row": True}
+            for name in GAUSSIAN_PARAMETERS
+        ]
         if self.environment is not None:
             groups.append(
                 {"name": "environment", "params": list(self.environment.parameters()), "lr": c.lr_environment}
@@ -212,6 +215,11 @@ class GaussianBackbone(Backbone):
         if self.sky is not None:
             groups.append({"name": "sky", "params": [self.sky.colors], "lr": c.lr_sky})
         return groups
+
+    def visible_rows(self, features: LdrFeatures) -> Tensor:
+        """The scene Gaussians the render projected into its image (a crop's: those whose box meets it)."""
+        index = features.extras["projected"].index
+        return index if self.sky is None else index[: scene_rows(features.extras["projected"], self.num_gaussians)]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """3DGS position schedule: log-linear from lr_means to lr_means_final over the run."""

@@ -168,6 +168,11 @@ class Backbone(torch.nn.Module):
         `optimizer` state in step (its param_groups carry the "name" keys given above).
         """
 
+    def visible_rows(self, features: LdrFeatures) -> Tensor | None:
+        """Which rows of the "per_row" parameter groups the render behind `features` touched: region
+        training steps only those (training.visible_adam). None: every row (no such groups)."""
+        return None
+
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """Per-group learning rate at `step`; override for schedules (3DGS position decay)."""
         return base_lr

@@ -72,6 +72,7 @@ from mono_hdr_plugin.training.resume import (
     describe_data,
     steps_left_note,
 )
+from mono_hdr_plugin.training.visible_adam import VisibleRowAdam
 
 console = Console(stderr=True)
 # Under --max-seconds: steps before the first estimate of the run length (the first ones pay for
@@ -117,7 +118,7 @@ class Trainer:
         groups = self.pipeline.parameter_groups()
         for group in groups:
             group["base_lr"] = group["lr"]
-        self.optimizer = torch.optim.Adam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
+        self.optimizer = VisibleRowAdam(groups, eps=1e-15, fused=True)  # one kernel per group, no per-tensor loop
         self.generator = torch.Generator().manual_seed(config.seed)
         levels = config.pyramid_levels or automatic_levels(scene.train, self.backbone.coarse_to_fine_pays)
         whole_images, regions = self.backbone.pixel_batch is None, config.region_pixels
@@ -215,7 +216,7 @@ class Trainer:
         if bad:
             self.optimizer.zero_grad(set_to_none=True)
         else:
-            self.optimizer.step()
+            self.optimizer.step(self.backbone.visible_rows(features) if self.config.region_pixels else None)
             self.pipeline.after_step(self.step, features, self.optimizer)
             self.optimizer.zero_grad(set_to_none=True)
         self.step += 1
@@ -395,6 +396,8 @@ class Trainer:
             for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
                 group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
             self.optimizer.load_state_dict(payload["optimizer"])
+            for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+                group["per_row"] = fresh.get("per_row", False)  # a checkpoint from before visible_adam lacks it
         except (RuntimeError, ValueError, KeyError) as error:
             settings = f" (changed: {', '.join(changed)})" if changed else ""
             raise ResumeMismatch(

@@ -267,6 +267,35 @@ class TestTrainerSteps:
         assert sizes == [(16, 16, None)] * 2 + [(24, 25, (32, 32))] * 2 + [(24, 25, (64, 64))] * 2
         assert trainer.pyramid.level_costs == [1.0, 1.0, 256 / 600]
 
+    def test_a_step_on_a_crop_leaves_the_gaussians_it_did_not_see(self, tmp_path, scene):
+        """Adam steps only the rows the crop saw (training.visible_adam): a Gaussian seen by the first
+        crop and not the second keeps its colour through the second step, though plain Adam's momentum
+        would move it; the rows the optimiser was given are the crop's projected Gaussians."""
+        config = make_config(tmp_path, GaussianConfig(), max_steps=2, region_pixels=600, pyramid_levels=1)
+        trainer = Trainer(config, "gs", scene)
+        cameras = watch_cameras(trainer)
+        seen, colours = [], []
+        step = trainer.optimizer.step
+
+        def spy(rows=None):
+            seen.append(rows)
+            step(rows)
+            colours.append(trainer.backbone.sh_dc.detach().clone())
+
+        trainer.optimizer.step = spy
+        before = trainer.backbone.sh_dc.detach().clone()
+        for _ in range(2):
+            trainer.train_step()
+        projected = trainer.backbone.render_ldr_features(cameras[1]).extras["projected"]
+        assert torch.equal(seen[1], projected.index)
+        first_only = torch.tensor(sorted(set(seen[0].tolist()) - set(seen[1].tolist())))
+        unseen = torch.ones(len(before), dtype=torch.bool)
+        unseen[torch.cat(seen)] = False
+        assert first_only.numel() > 0 and unseen.any()
+        assert torch.equal(colours[1][first_only], colours[0][first_only])
+        assert torch.equal(colours[1][unseen], before[unseen])
+        assert not torch.equal(colours[1][seen[1]], colours[0][seen[1]])
+
     @pytest.mark.parametrize("background", ["environment", "sky-gaussians"])
     def test_crops_with_refined_poses_learned_white_balance_and_a_sky(self, tmp_path, scene, background):
         """The paths that take the step's camera: pose refinement (a new c2w, the crop's intrinsics and
