@@ -101,8 +101,8 @@ def profiled_view(trainer: Trainer, region_pixels: int | None, draws: int = 9) -
 
 def rasteriser_parts(
     trainer: Trainer, view: View, zero: Callable[[], None]
-) -> tuple[list[tuple[str, Callable[[], None]]], int]:
-    """Projection, SH colours and compositing of `view`, each forward + backward; and how many
+) -> tuple[list[tuple[str, Callable[[], None]]], torch.Tensor]:
+    """Projection, SH colours and compositing of `view`, each forward + backward; and which
     Gaussians that view sees."""
     backbone, camera = trainer.backbone, view.camera
     g = {name: getattr(backbone, name) for name in GAUSSIAN_PARAMETERS}
@@ -140,15 +140,17 @@ def rasteriser_parts(
         ("SH colours of the visible Gaussians (C++), forward + backward", colours),
         ("compositing 6 channels LDR + HDR (C++), forward + backward", compositing),
     ]
-    return parts, int(index.numel())
+    return parts, index
 
 
 def method_and_optimiser_parts(
-    trainer: Trainer, view: View, visible: int, zero: Callable[[], None]
+    trainer: Trainer, view: View, visible: torch.Tensor, zero: Callable[[], None]
 ) -> list[tuple[str, Callable[[], None]]]:
-    """L2H-CC, H2L-CC with the losses, Adam and the MCMC strategy's per-step work."""
+    """L2H-CC, H2L-CC with the losses, Adam (on the `visible` rows with region training, as the
+    trainer steps it) and the MCMC strategy's per-step work."""
     backbone, method = trainer.backbone, trainer.method
-    ldr_colours = torch.rand(visible, 3, requires_grad=True)
+    rows = visible if trainer.config.region_pixels else None
+    ldr_colours = torch.rand(visible.numel(), 3, requires_grad=True)
     hdr_image = (torch.rand(view.camera.height, view.camera.width, 3) * 10).requires_grad_()
 
     def l2h():
@@ -170,7 +172,7 @@ def method_and_optimiser_parts(
         for group in trainer.optimizer.param_groups:
             for parameter in group["params"]:
                 parameter.grad = torch.zeros_like(parameter)
-        trainer.optimizer.step()
+        trainer.optimizer.step(rows)
 
     def strategy():
         backbone.config.strategy.add_position_noise(backbone, 1e-5)
@@ -179,7 +181,7 @@ def method_and_optimiser_parts(
     return [
         ("L2H-CC on the visible Gaussians, forward + backward", l2h),
         ("H2L-CC and the three L1 + D-SSIM losses, forward + backward", h2l_and_losses),
-        ("Adam (fused), all parameters", adam),
+        ("Adam (fused; with crops the per-Gaussian rows the crop saw)", adam),
         ("MCMC position noise and regularisers", strategy),
     ]
 
@@ -204,7 +206,7 @@ def profile(
     facts = {
         "scene": scene_name,
         "gaussians": backbone.num_gaussians,
-        "visible": visible,
+        "visible": visible.numel(),
         "pixels": camera.width * camera.height,
         "frame": camera.frame_size,
         "step": step,

@@ -50,11 +50,13 @@ class VisibleRowAdam(torch.optim.Adam):
         state["step"] += 1
         step = float(state["step"])
         beta1, beta2 = group["betas"]
-        seen = grad[rows]
-        exp_avg = state["exp_avg"][rows].lerp_(seen, 1 - beta1)
-        exp_avg_sq = state["exp_avg_sq"][rows].mul_(beta2).addcmul_(seen, seen, value=1 - beta2)
-        state["exp_avg"][rows] = exp_avg
-        state["exp_avg_sq"][rows] = exp_avg_sq
+        # index_select / index_copy_: several times faster on CPU than advanced indexing (x[rows])
+        seen = grad.index_select(0, rows)
+        exp_avg = state["exp_avg"].index_select(0, rows).lerp_(seen, 1 - beta1)
+        exp_avg_sq = state["exp_avg_sq"].index_select(0, rows).mul_(beta2).addcmul_(seen, seen, value=1 - beta2)
+        state["exp_avg"].index_copy_(0, rows, exp_avg)
+        state["exp_avg_sq"].index_copy_(0, rows, exp_avg_sq)
         bias_correction2_sqrt = (1 - beta2**step) ** 0.5
         denominator = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(group["eps"])
-        param[rows] = param[rows].addcdiv_(exp_avg, denominator, value=-group["lr"] / (1 - beta1**step))
+        moved = param.index_select(0, rows).addcdiv_(exp_avg, denominator, value=-group["lr"] / (1 - beta1**step))
+        param.index_copy_(0, rows, moved)
