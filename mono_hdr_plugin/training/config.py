@@ -81,7 +81,8 @@ class TrainConfig:
     """Region training: a 3DGS step renders and scores a random crop of about this many pixels of its view
     instead of the whole image (about sqrt a side; a view, or pyramid level, with fewer pixels trains
     whole), so a step costs the same at any image size. None: whole images. Refused for a backbone that
-    trains on ray batches (NeRF). Off by default until curves choose a budget (docs/sizes.md)."""
+    trains on ray batches (NeRF). Off by default: the curves measured so far favour whole images or the
+    pyramid (docs/sizes.md, "Region training")."""
     checkpoint_every: int = 1000
     """Write OUT/checkpoints/latest.pt every N steps (and at the end)."""
     max_eval_views: int | None = None
