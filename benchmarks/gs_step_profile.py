@@ -36,8 +36,8 @@ from mono_hdr_plugin.core.metrics import normalise_hdr
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import View
 from mono_hdr_plugin.data.loading import load_scene
+from mono_hdr_plugin.training.batches import training_batch
 from mono_hdr_plugin.training.config import train_config_for
-from mono_hdr_plugin.training.regions import random_region
 from mono_hdr_plugin.training.trainer import Trainer
 
 
@@ -76,27 +76,14 @@ def warmed_trainer(scene_name: str, warmup: int, side: int | None, region_pixels
 def profiled_view(trainer: Trainer, region_pixels: int | None, draws: int = 9) -> View:
     """Training view 0, or with region_pixels the crop (of `draws` random ones, seed 0) that sees the
     median number of Gaussians: what a typical step renders (a crop of plain wall sees a handful)."""
-    view = trainer.scene.train[0]
-    camera = view.camera
-    if region_pixels is None or camera.width * camera.height <= region_pixels:
-        return view
-    backbone, generator = trainer.backbone, torch.Generator().manual_seed(0)
+    view, backbone, generator = trainer.scene.train[0], trainer.backbone, torch.Generator().manual_seed(0)
+    crops = []
     with torch.no_grad():
-        activated = (
-            backbone.means,
-            backbone.quats,
-            torch.exp(backbone.log_scales),
-            torch.sigmoid(backbone.opacity_logits),
-        )
-        crops = []
         for _ in range(draws):
-            left, top, width, height = random_region(camera.width, camera.height, region_pixels, generator)
-            crop = camera.crop(left, top, width, height)
-            crops.append((project_gaussians(*activated, crop).index.numel(), left, top, crop))
-    _, left, top, crop = sorted(crops, key=lambda entry: entry[0])[draws // 2]
-    box = slice(top, top + crop.height), slice(left, left + crop.width)
-    hdr = None if view.hdr is None else view.hdr[box]
-    return replace(view, camera=crop, image=view.image[box], hdr=hdr)
+            camera, targets = training_batch(view, None, True, generator, region_pixels)
+            crops.append((backbone.visible_rows(backbone.render_ldr_features(camera)).numel(), camera, targets))
+    _, camera, targets = sorted(crops, key=lambda entry: entry[0])[draws // 2]
+    return replace(view, camera=camera, image=targets.ldr, hdr=targets.hdr)
 
 
 def rasteriser_parts(

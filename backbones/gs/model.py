@@ -218,8 +218,8 @@ class GaussianBackbone(Backbone):
 
     def visible_rows(self, features: LdrFeatures) -> Tensor:
         """The scene Gaussians the render projected into its image (a crop's: those whose box meets it)."""
-        index = features.extras["projected"].index
-        return index if self.sky is None else index[: scene_rows(features.extras["projected"], self.num_gaussians)]
+        projected = features.extras["projected"]
+        return projected.index if self.sky is None else projected.index[: scene_rows(projected, self.num_gaussians)]
 
     def learning_rate(self, group_name: str, step: int, base_lr: float) -> float:
         """3DGS position schedule: log-linear from lr_means to lr_means_final over the run."""

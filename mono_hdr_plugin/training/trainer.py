@@ -393,10 +393,11 @@ class Trainer:
         check_resumed_refinement(payload, self.pipeline, self.checkpoint_path())
         try:
             self.pipeline.load_state_dict(payload["pipeline"])
-            for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+            fresh_groups = self.pipeline.parameter_groups()
+            for group, fresh in zip(self.optimizer.param_groups, fresh_groups, strict=True):
                 group["params"] = list(fresh["params"])  # the (possibly resized) parameters, before Adam's state
             self.optimizer.load_state_dict(payload["optimizer"])
-            for group, fresh in zip(self.optimizer.param_groups, self.pipeline.parameter_groups(), strict=True):
+            for group, fresh in zip(self.optimizer.param_groups, fresh_groups, strict=True):
                 group["per_row"] = fresh.get("per_row", False)  # a checkpoint from before visible_adam lacks it
         except (RuntimeError, ValueError, KeyError) as error:
             settings = f" (changed: {', '.join(changed)})" if changed else ""
