@@ -14,6 +14,7 @@ os.environ.setdefault("ATEN_CPU_CAPABILITY", "avx2")
 
 import pytest
 import torch
+from helpers import tiny_builtin_scenes, tiny_variant
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 if str(EXAMPLES) not in sys.path:
@@ -46,11 +47,6 @@ def studio_cache(tmp_path_factory):
         yield folder
 
 
-def tiny_variant(scene):
-    """A built-in scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
-    return replace(scene, resolution=(24, 24), spp=4, rig=replace(scene.rig, views=10))
-
-
 @pytest.fixture(scope="session")
 def tiny_demo(studio_cache):
     """The demo scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
@@ -60,13 +56,12 @@ def tiny_demo(studio_cache):
 
 
 @pytest.fixture(autouse=True)
-def tiny_builtin_scenes(request, monkeypatch):
+def tiny_scenes_outside_slow_tests(request):
     """Outside slow tests, `--scene NAME` finds tiny variants rendered into the session cache:
     the real scenes take minutes to render. Slow tests see the real ones (and the user's cache)."""
     if request.node.get_closest_marker("slow"):
+        yield
         return
-    from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES, SCENES
-
     request.getfixturevalue("studio_cache")
-    for scene in BUILTIN_SCENES:
-        monkeypatch.setitem(SCENES, scene.name, tiny_variant(scene))
+    with tiny_builtin_scenes():
+        yield

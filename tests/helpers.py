@@ -1,5 +1,8 @@
 """Test helpers shared by several test folders (imported as `from helpers import ...`)."""
 
+from contextlib import contextmanager
+from dataclasses import replace
+
 
 class FakeClock:
     """perf_counter that advances a fixed amount per call: a step of the trainer reads it twice."""
@@ -37,3 +40,23 @@ def real_photos(name: str):
             pytest.fail(f"{folder}: the real photos are missing; CI runs beside shared/data/real")
         pytest.skip(f"{folder}: real photos not available here")
     return folder
+
+
+def tiny_variant(scene):
+    """A built-in scene at 24x24, 4 samples per pixel, 10 views: renders in about a second."""
+    return replace(scene, resolution=(24, 24), spp=4, rig=replace(scene.rig, views=10))
+
+
+@contextmanager
+def tiny_builtin_scenes():
+    """While it lasts, `--scene NAME` finds the tiny variant of each built-in scene. The default suite's
+    tests have it by an autouse fixture; a session or module fixture, set up before that one, enters it
+    itself (with the `studio_cache` fixture, so the renders go to the session's cache)."""
+    import pytest
+
+    from mono_hdr_plugin.apps.studio.scenes import BUILTIN_SCENES, SCENES
+
+    with pytest.MonkeyPatch.context() as patch:
+        for scene in BUILTIN_SCENES:
+            patch.setitem(SCENES, scene.name, tiny_variant(scene))
+        yield

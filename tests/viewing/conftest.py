@@ -2,7 +2,7 @@
 
 import pytest
 import register_backbone  # noqa: F401 - registers voxel-grid (examples/, on sys.path via the top conftest)
-from helpers import quiet_config
+from helpers import quiet_config, tiny_builtin_scenes
 
 from mono_hdr_plugin.training.trained import TrainedModel
 from mono_hdr_plugin.training.trainer import Trainer
@@ -41,30 +41,16 @@ def voxel_crf(tmp_path_factory, voxel_scene, voxel_backbone_config):
 
 
 @pytest.fixture(scope="session")
-def demo_voxel_checkpoint(tmp_path_factory):
-    """A voxel-grid checkpoint of the built-in demo scene (outside slow tests, its tiny variant),
-    as the command line writes it."""
+def demo_voxel_checkpoint(tmp_path_factory, studio_cache):
+    """A voxel-grid checkpoint of the tiny variant of the built-in demo scene, as the command line
+    writes it (set up before the tests' autouse fixture, so it enters the tiny scenes itself)."""
     from mono_hdr_plugin.apps.cli import main
 
     out = tmp_path_factory.mktemp("demo-voxel") / "run"
-    main(
-        [
-            "train",
-            "voxel-grid",
-            "--scene",
-            "demo",
-            "--max-steps",
-            "3",
-            "--out",
-            str(out),
-            "--quiet",
-            "--max-eval-views",
-            "1",
-            "--no-save-renders",
-            "--backbone.resolution",
-            "8",
-            "--backbone.samples-per-ray",
-            "8",
-        ]
-    )
+    with tiny_builtin_scenes():
+        main(
+            ["train", "voxel-grid", "--scene", "demo", "--max-steps", "3", "--out", str(out), "--quiet"]
+            + ["--max-eval-views", "1", "--no-save-renders", "--backbone.resolution", "8"]
+            + ["--backbone.samples-per-ray", "8"]
+        )
     return out / "checkpoints" / "latest.pt"
