@@ -2,7 +2,6 @@
 
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 # MKL and ATen's own vectorised kernels pick their code path by CPU (AVX2, AVX-512), and paths differ

@@ -12,6 +12,8 @@ from mono_hdr_plugin.core.converters import (
     PerChannelLinear,
     PlainH2L,
     PlainL2H,
+    h2l_cc,
+    h2l_cc_reference,
     per_channel_relu_mlp,
 )
 
@@ -216,6 +218,73 @@ class TestH2LColorConverter:
         converter = H2LColorConverter(hidden=6).double()
         x = torch.rand(3, 3, dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(converter, (x,))
+
+
+def layered_h2l(converter: H2LColorConverter, x: torch.Tensor) -> torch.Tensor:
+    """H2L-CC through the converter's own nn.Linear layers, as the official code runs it."""
+    latent = F.relu(converter.latent(x))
+    return torch.sigmoid(F.relu(converter.response(latent)) + torch.tanh(converter.bias(latent)))
+
+
+class TestH2LKernel:
+    """The fused C++ H2L-CC (`h2l_cc`) against the layers it fuses: values and every gradient."""
+
+    @pytest.mark.parametrize("hidden", [128, 7])  # 7: the vector loops' remainder
+    def test_values_and_gradients_match_the_layers(self, hidden):
+        torch.manual_seed(hidden)
+        converter = H2LColorConverter(hidden)
+        x = torch.rand(40, 30, 3, requires_grad=True)
+        upstream = torch.randn(40, 30, 3)
+        parameters = [x, *converter.parameters()]
+        fused = converter(x)
+        layered = layered_h2l(converter, x)
+        torch.testing.assert_close(fused, layered, rtol=1e-6, atol=1e-6)
+        fused_grads = torch.autograd.grad(fused, parameters, upstream)
+        layered_grads = torch.autograd.grad(layered, parameters, upstream)
+        for got, expected in zip(fused_grads, layered_grads, strict=True):
+            torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5 * expected.abs().max().item())
+
+    def test_gradcheck_of_every_input_in_double(self):
+        torch.manual_seed(1)
+        inputs = [
+            torch.rand(5, 3, dtype=torch.float64),
+            torch.randn(6, 3, dtype=torch.float64),
+            torch.randn(6, dtype=torch.float64),
+            torch.randn(6, 6, dtype=torch.float64),
+            torch.randn(6, dtype=torch.float64),
+        ]
+        inputs = [t.requires_grad_() for t in inputs]
+        assert torch.autograd.gradcheck(h2l_cc, inputs)
+
+    def test_the_same_on_one_thread_and_two(self):
+        converter = H2LColorConverter(32)
+        x = torch.rand(1000, 3, requires_grad=True)
+        results = []
+        for threads in (1, 2):
+            previous = torch.get_num_threads()
+            torch.set_num_threads(threads)
+            try:
+                out = converter(x)
+                results.append([out, *torch.autograd.grad(out.square().sum(), [x, converter.latent.weight])])
+            finally:
+                torch.set_num_threads(previous)
+        for one, two in zip(*results, strict=True):
+            torch.testing.assert_close(one, two, rtol=1e-5, atol=1e-6)
+
+    def test_reference_twin_is_the_layers(self):
+        converter = H2LColorConverter(16)
+        x = torch.rand(8, 3)
+        weights = torch.cat([converter.response.weight, converter.bias.weight])
+        biases = torch.cat([converter.response.bias, converter.bias.bias])
+        reference = h2l_cc_reference(x, converter.latent.weight, converter.latent.bias, weights, biases)
+        torch.testing.assert_close(reference, layered_h2l(converter, x))
+
+    def test_an_empty_batch(self):
+        converter = H2LColorConverter(8)
+        x = torch.rand(0, 3, requires_grad=True)
+        out = converter(x)
+        out.sum().backward()
+        assert out.shape == (0, 3) and converter.latent.weight.grad.abs().sum() == 0
 
 
 class TestAblationConverters:
