@@ -51,13 +51,29 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
     3DGS SSIM. Only windows that lie inside the image are kept, which is exactly the region
     scikit-image averages (it crops the border its padding touched), so the mean matches
     `skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
-    use_sample_covariance=False, data_range=1, channel_axis=-1)`. Differentiable.
+    use_sample_covariance=False, data_range=1, channel_axis=-1)`. Differentiable in `pred`; on the
+    CPU, with a constant `target` (a loss's), it runs the fused C++ kernel, else `ssim_map_reference`.
     """
+    _check_ssim_shapes(pred, target)
+    if pred.device.type != "cpu" or target.requires_grad:
+        return ssim_map_reference(pred, target, data_range)
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    x, y = pred.permute(2, 0, 1).contiguous(), target.permute(2, 0, 1).contiguous()
+    return _FusedSsim.apply(x, y.to(x.dtype), _gaussian_window(x.dtype), c1, c2).permute(1, 2, 0)
+
+
+def _check_ssim_shapes(pred: Tensor, target: Tensor) -> None:
     if pred.shape != target.shape:
         raise ValueError(f"ssim: shapes differ, {tuple(pred.shape)} vs {tuple(target.shape)}")
-    height, width, channels = pred.shape
+    height, width, _ = pred.shape
     if min(height, width) < SSIM_WINDOW:
         raise ValueError(f"ssim needs images of at least {SSIM_WINDOW} pixels per side, got {height}x{width}")
+
+
+def ssim_map_reference(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+    """`ssim_map` in torch layers (the fused kernel's twin; differentiable in both images)."""
+    _check_ssim_shapes(pred, target)
+    channels = pred.shape[-1]
     window = _gaussian_window(pred.dtype)
     # [1, 5C, H, W]: x, y, x^2, y^2, xy filtered together by one separable depthwise convolution
     # (as groups: on the CPU that is ~10x faster than the same filter over a batch of 5C images).
@@ -72,6 +88,29 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
     numerator = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
     denominator = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
     return (numerator / denominator).permute(1, 2, 0)
+
+
+class _FusedSsim(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x, y, window, c1, c2):
+        map, statistics = _ssim_extension().ssim_forward(x, y, window, c1, c2)
+        ctx.save_for_backward(x, y, statistics, window)
+        ctx.constants = (c1, c2)
+        return map
+
+    @staticmethod
+    def backward(ctx, grad_map):
+        x, y, statistics, window = ctx.saved_tensors
+        grad_x = _ssim_extension().ssim_backward(grad_map.contiguous(), x, y, statistics, window, *ctx.constants)
+        return grad_x, None, None, None, None
+
+
+def _ssim_extension():
+    from pathlib import Path
+
+    from mono_hdr_plugin.core.cpp_extensions import load_cpp_extension
+
+    return load_cpp_extension("ssim", Path(__file__).parent / "csrc" / "ssim.cpp")
 
 
 def ssim(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:

@@ -16,6 +16,7 @@ from mono_hdr_plugin.core.metrics import (
     source_region,
     ssim,
     ssim_map,
+    ssim_map_reference,
     tone_mapped_pair,
 )
 
@@ -41,15 +42,16 @@ class TestPsnr:
 
 
 class TestSsim:
+    @pytest.mark.parametrize("mapper", [ssim_map, ssim_map_reference], ids=["kernel", "torch"])
     @pytest.mark.parametrize("shape", [(32, 32, 3), (17, 40, 1), (11, 11, 3)])
-    def test_matches_skimage_3dgs_settings(self, shape):
+    def test_matches_skimage_3dgs_settings(self, shape, mapper):
         rng = np.random.default_rng(1)
         a = rng.random(shape)
         b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
         expected = structural_similarity(
             a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0, channel_axis=-1
         )
-        got = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
+        got = mapper(torch.from_numpy(a), torch.from_numpy(b)).mean().item()
         assert got == pytest.approx(expected, abs=1e-10)
 
     def test_identical_is_one(self):
@@ -64,6 +66,46 @@ class TestSsim:
         a = torch.rand(12, 12, 1, dtype=torch.float64, requires_grad=True)
         b = torch.rand(12, 12, 1, dtype=torch.float64)
         assert torch.autograd.gradcheck(lambda x: ssim(x, b), (a,))
+
+
+class TestSsimKernel:
+    """The fused C++ SSIM (`ssim_map` on the CPU with a constant target) against its torch twin."""
+
+    @pytest.mark.parametrize("shape", [(40, 33, 3), (11, 11, 1), (12, 70, 3)])
+    def test_map_and_gradient_match_the_twin(self, shape):
+        generator = torch.Generator().manual_seed(sum(shape))
+        pred = torch.rand(shape, generator=generator).requires_grad_()
+        target = (pred.detach() + 0.1 * torch.randn(shape, generator=generator)).clamp(0, 1)
+        upstream = torch.randn(shape[0] - 10, shape[1] - 10, shape[2], generator=generator)
+        fused, reference = ssim_map(pred, target), ssim_map_reference(pred, target)
+        torch.testing.assert_close(fused, reference, rtol=1e-5, atol=1e-5)
+        (got,) = torch.autograd.grad(fused, pred, upstream)
+        (expected,) = torch.autograd.grad(reference, pred, upstream)
+        torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5 * expected.abs().max().item())
+
+    def test_gradcheck_in_double_away_from_the_border(self):
+        pred = torch.rand(16, 13, 2, dtype=torch.float64, requires_grad=True)
+        target = torch.rand(16, 13, 2, dtype=torch.float64)
+        assert torch.autograd.gradcheck(lambda x: ssim_map(x, target, data_range=2.0), (pred,))
+
+    def test_a_target_that_needs_a_gradient_gets_one(self):
+        pred, target = torch.rand(14, 14, 3), torch.rand(14, 14, 3, requires_grad=True)
+        ssim(pred, target).backward()
+        assert target.grad is not None and target.grad.abs().sum() > 0
+
+    def test_the_same_on_one_thread_and_two(self):
+        pred, target = torch.rand(64, 48, 3, requires_grad=True), torch.rand(64, 48, 3)
+        results = []
+        for threads in (1, 2):
+            previous = torch.get_num_threads()
+            torch.set_num_threads(threads)
+            try:
+                value = ssim(pred, target)
+                results.append((value, *torch.autograd.grad(value, pred)))
+            finally:
+                torch.set_num_threads(previous)
+        for one, two in zip(*results, strict=True):
+            torch.testing.assert_close(one, two)
 
 
 class TestMuLaw:
