@@ -8,6 +8,7 @@ All functions take torch tensors [H, W, C] (or [N, C] for PSNR) with LDR values 
 
 import functools
 import math
+from pathlib import Path
 from typing import Literal
 
 import torch
@@ -57,9 +58,13 @@ def ssim_map(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
     _check_ssim_shapes(pred, target)
     if pred.device.type != "cpu" or target.requires_grad:
         return ssim_map_reference(pred, target, data_range)
-    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
     x, y = pred.permute(2, 0, 1).contiguous(), target.permute(2, 0, 1).contiguous()
-    return _FusedSsim.apply(x, y.to(x.dtype), _gaussian_window(x.dtype), c1, c2).permute(1, 2, 0)
+    return _FusedSsim.apply(x, y.to(x.dtype), _gaussian_window(x.dtype), *_ssim_constants(data_range)).permute(1, 2, 0)
+
+
+def _ssim_constants(data_range: float) -> tuple[float, float]:
+    """C1 = (K1 L)^2 and C2 = (K2 L)^2 with K1 = 0.01, K2 = 0.03 and L the data range."""
+    return (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
 
 
 def _check_ssim_shapes(pred: Tensor, target: Tensor) -> None:
@@ -84,7 +89,7 @@ def ssim_map_reference(pred: Tensor, target: Tensor, data_range: float = 1.0) ->
     filtered = F.conv2d(filtered, window.view(1, 1, 1, -1).repeat(maps, 1, 1, 1), groups=maps).squeeze(0)
     mu_x, mu_y, xx, yy, xy = filtered.split(channels)
     var_x, var_y, cov = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
-    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    c1, c2 = _ssim_constants(data_range)
     numerator = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
     denominator = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
     return (numerator / denominator).permute(1, 2, 0)
@@ -106,8 +111,6 @@ class _FusedSsim(torch.autograd.Function):
 
 
 def _ssim_extension():
-    from pathlib import Path
-
     from mono_hdr_plugin.core.cpp_extensions import load_cpp_extension
 
     return load_cpp_extension("ssim", Path(__file__).parent / "csrc" / "ssim.cpp")

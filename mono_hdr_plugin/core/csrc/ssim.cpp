@@ -106,6 +106,17 @@ void check_inputs(const torch::Tensor& x, const torch::Tensor& y, const torch::T
     TORCH_CHECK(y.scalar_type() == x.scalar_type() && window.scalar_type() == x.scalar_type(), "ssim: one dtype");
 }
 
+// The four factors of one pixel's SSIM = (a1 a2) / (b1 b2), from its five filtered statistics.
+template <typename scalar_t>
+struct SsimFactors {
+    scalar_t a1, a2, b1, b2;
+    SsimFactors(scalar_t mx, scalar_t my, scalar_t xx, scalar_t yy, scalar_t xy, scalar_t k1, scalar_t k2)
+        : a1(2 * mx * my + k1),
+          a2(2 * (xy - mx * my) + k2),
+          b1(mx * mx + my * my + k1),
+          b2((xx - mx * mx) + (yy - my * my) + k2) {}
+};
+
 template <typename scalar_t>
 void forward_channels(const scalar_t* xp, const scalar_t* yp, const scalar_t* g, scalar_t* mp, scalar_t* sp,
                       int64_t channels, int64_t h, int64_t w, scalar_t k1, scalar_t k2) {
@@ -119,11 +130,8 @@ void forward_channels(const scalar_t* xp, const scalar_t* yp, const scalar_t* g,
         scalar_t* out = mp + ch * n;
 #pragma omp simd
         for (int64_t i = 0; i < n; ++i) {
-            const scalar_t a1 = 2 * mx[i] * my[i] + k1;
-            const scalar_t a2 = 2 * (xy[i] - mx[i] * my[i]) + k2;
-            const scalar_t b1 = mx[i] * mx[i] + my[i] * my[i] + k1;
-            const scalar_t b2 = (xx[i] - mx[i] * mx[i]) + (yy[i] - my[i] * my[i]) + k2;
-            out[i] = (a1 * a2) / (b1 * b2);
+            const SsimFactors<scalar_t> f(mx[i], my[i], xx[i], yy[i], xy[i], k1, k2);
+            out[i] = (f.a1 * f.a2) / (f.b1 * f.b2);
         }
     }
 }
@@ -144,12 +152,10 @@ void backward_channels(const scalar_t* gm, const scalar_t* xp, const scalar_t* y
         const scalar_t* gc = gm + ch * n;
 #pragma omp simd
         for (int64_t i = 0; i < n; ++i) {
-            const scalar_t a1 = 2 * mx[i] * my[i] + k1;
-            const scalar_t a2 = 2 * (xy[i] - mx[i] * my[i]) + k2;
-            const scalar_t b1 = mx[i] * mx[i] + my[i] * my[i] + k1;
-            const scalar_t b2 = (xx[i] - mx[i] * mx[i]) + (yy[i] - my[i] * my[i]) + k2;
-            const scalar_t s = (a1 * a2) / (b1 * b2);
-            const scalar_t d_a1 = a2 / (b1 * b2), d_a2 = a1 / (b1 * b2), d_b1 = -s / b1, d_b2 = -s / b2;
+            const SsimFactors<scalar_t> f(mx[i], my[i], xx[i], yy[i], xy[i], k1, k2);
+            const scalar_t s = (f.a1 * f.a2) / (f.b1 * f.b2);
+            const scalar_t d_a1 = f.a2 / (f.b1 * f.b2), d_a2 = f.a1 / (f.b1 * f.b2);
+            const scalar_t d_b1 = -s / f.b1, d_b2 = -s / f.b2;
             // a1, a2, b1, b2 as functions of mu_x, E[x^2], E[xy] (mu_y, E[y^2] belong to the constant y)
             d_mx[i] = gc[i] * (2 * my[i] * (d_a1 - d_a2) + 2 * mx[i] * (d_b1 - d_b2));
             d_xx[i] = gc[i] * d_b2;
