@@ -10,7 +10,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from types import ModuleType
+from typing import Any
 
 import torch
 
@@ -50,9 +50,13 @@ def clear_stale_lock(build_dir: Path) -> None:
 
 
 @functools.cache
-def load_cpp_extension(name: str, source: Path) -> ModuleType:
-    """The compiled module of one C++ source (compiled on the first call of a process when the
-    cached build is missing or stale; a minute or so)."""
+def load_cpp_extension(name: str, source: Path) -> Any:
+    """The operators of one C++ source, as `torch.ops.mono_hdr_<name>_<suffix>` (compiled on the
+    first call of a process when the cached build is missing or stale; about 10 s).
+
+    The sources register operators (TORCH_LIBRARY) rather than a pybind11 module: pybind11 and
+    <torch/extension.h> would make each build 20-30 s longer, for nothing the kernels use.
+    """
     from torch.utils.cpp_extension import load  # pulls in the compiler tool chain
 
     if "TORCH_EXTENSIONS_DIR" in os.environ:
@@ -62,14 +66,17 @@ def load_cpp_extension(name: str, source: Path) -> ModuleType:
     suffix, flags = vector_flags()
     build_dir = build_root / f"{name}_{suffix}"
     build_dir.mkdir(parents=True, exist_ok=True)
-    if not any(build_dir.glob("*.so")):  # a first build takes minutes: say so before the compiler is silent
-        print(f"building the C++ kernel {name} (first use, about 1.5 minutes; cached in {build_dir})", file=sys.stderr)
+    if not any(build_dir.glob("*.so")):  # a first build takes seconds: say so before the compiler is silent
+        print(f"building the C++ kernel {name} (first use, about 10 s; cached in {build_dir})", file=sys.stderr)
     clear_stale_lock(build_dir)
-    return load(
-        name=f"mono_hdr_{name}_{suffix}",
+    library = f"mono_hdr_{name}_{suffix}"
+    load(
+        name=library,
         sources=[str(source)],
         extra_cflags=["-O3", "-fopenmp", *flags],
         extra_ldflags=["-fopenmp"],
         build_directory=str(build_dir),
+        is_python_module=False,
         verbose=False,
     )
+    return getattr(torch.ops, library)

@@ -12,7 +12,13 @@
 // skip alpha < 1/255, stop before T < 1e-4). The plain-torch twins in backbones/gs/reference.py
 // and backbones/gs/sh.py define the same results.
 
-#include <torch/extension.h>
+// The few ATen headers these kernels use, not <torch/extension.h>: that one takes 28 s of a
+// 35 s build (it parses all of libtorch's C++ API and pybind11); docs/gs_cpu.md, "Build time".
+#include <ATen/core/Tensor.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/zeros.h>
+#include <ATen/ops/zeros_like.h>
+#include <torch/library.h>
 #include <omp.h>
 
 #include <algorithm>
@@ -54,12 +60,12 @@ inline float exp_nonpositive(float x) {
   return p * scale;
 }
 
-void check_cpu_float(const torch::Tensor& t, const char* name) {
-  TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == torch::kFloat32 && t.is_contiguous(), name,
+void check_cpu_float(const at::Tensor& t, const char* name) {
+  TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == at::kFloat && t.is_contiguous(), name,
               " must be a contiguous float32 CPU tensor");
 }
 
-void check_rows(const torch::Tensor& t, const char* name, int64_t rows, int64_t width) {
+void check_rows(const at::Tensor& t, const char* name, int64_t rows, int64_t width) {
   check_cpu_float(t, name);
   TORCH_CHECK(t.dim() == 2 && t.size(0) == rows && t.size(1) == width, name, " must have shape [", rows, ", ",
               width, "]");
@@ -135,18 +141,18 @@ inline float view_direction(const float* mean, const float* center, float* dir) 
 
 // Colours [V, 3] (without 3DGS's +0.5) of the Gaussians `index` [V] seen from `center` [3].
 // sh_dc [N, 1, 3] and sh_rest [N, K - 1, 3] are the coefficients; `degree` the active degree.
-torch::Tensor sh_forward(torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor means, torch::Tensor index,
-                         torch::Tensor center, int64_t degree) {
+at::Tensor sh_forward(at::Tensor sh_dc, at::Tensor sh_rest, at::Tensor means, at::Tensor index,
+                         at::Tensor center, int64_t degree) {
   check_cpu_float(sh_dc, "sh_dc");
   check_cpu_float(sh_rest, "sh_rest");
   check_cpu_float(means, "means");
   check_cpu_float(center, "center");
-  TORCH_CHECK(index.scalar_type() == torch::kInt64 && index.is_contiguous(), "index must be contiguous int64");
+  TORCH_CHECK(index.scalar_type() == at::kLong && index.is_contiguous(), "index must be contiguous int64");
   const int64_t rest = sh_rest.size(1), v_count = index.size(0);
   TORCH_CHECK((degree + 1) * (degree + 1) <= rest + 1, "SH degree ", degree, " needs ", (degree + 1) * (degree + 1),
               " coefficients per channel, got ", rest + 1);
   const int bases = (int)((degree + 1) * (degree + 1));
-  auto colors = torch::empty({v_count, 3}, sh_dc.options());
+  auto colors = at::empty({v_count, 3}, sh_dc.options());
   const float *dc = sh_dc.data_ptr<float>(), *rs = sh_rest.data_ptr<float>(), *m = means.data_ptr<float>();
   const float* c = center.data_ptr<float>();
   const int64_t* idx = index.data_ptr<int64_t>();
@@ -167,15 +173,15 @@ torch::Tensor sh_forward(torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tens
 }
 
 // Gradients of sh_forward with respect to sh_dc, sh_rest and means (through the view direction).
-std::vector<torch::Tensor> sh_backward(torch::Tensor sh_dc, torch::Tensor sh_rest, torch::Tensor means,
-                                       torch::Tensor index, torch::Tensor center, int64_t degree,
-                                       torch::Tensor v_colors) {
+std::vector<at::Tensor> sh_backward(at::Tensor sh_dc, at::Tensor sh_rest, at::Tensor means,
+                                       at::Tensor index, at::Tensor center, int64_t degree,
+                                       at::Tensor v_colors) {
   check_cpu_float(v_colors, "v_colors");
   const int64_t rest = sh_rest.size(1), v_count = index.size(0);
   const int bases = (int)((degree + 1) * (degree + 1));
-  auto v_dc = torch::zeros_like(sh_dc);
-  auto v_rest = torch::zeros_like(sh_rest);
-  auto v_means = torch::zeros_like(means);
+  auto v_dc = at::zeros_like(sh_dc);
+  auto v_rest = at::zeros_like(sh_rest);
+  auto v_means = at::zeros_like(means);
   const float *dc = sh_dc.data_ptr<float>(), *rs = sh_rest.data_ptr<float>(), *m = means.data_ptr<float>();
   const float *c = center.data_ptr<float>(), *vc = v_colors.data_ptr<float>();
   const int64_t* idx = index.data_ptr<int64_t>();
@@ -305,8 +311,8 @@ Intrinsics make_intrinsics(double fx, double fy, double cx, double cy, int64_t w
 // radii [N] (int32, ceil of 3 sigma, 0 when culled), and for the visible ones means2d [V,2],
 // conics [V,3], depths [V] and boxes [V,4] (int32 x0, y0, x1, y1, end-exclusive: the pixels
 // where alpha can reach 1/255).
-std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                           torch::Tensor opacities, torch::Tensor viewmat, double fx, double fy,
+std::vector<at::Tensor> project_forward(at::Tensor means, at::Tensor quats, at::Tensor scales,
+                                           at::Tensor opacities, at::Tensor viewmat, double fx, double fy,
                                            double cx, double cy, int64_t width, int64_t height, double near_plane) {
   const int64_t n = means.size(0);
   check_rows(means, "means", n, 3);
@@ -316,7 +322,7 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
   check_cpu_float(viewmat, "viewmat");
   const Intrinsics k = make_intrinsics(fx, fy, cx, cy, width, height, near_plane);
   auto opts = means.options();
-  auto radii = torch::zeros({n}, opts.dtype(torch::kInt32));
+  auto radii = at::zeros({n}, opts.dtype(at::kInt));
   std::vector<float> all(8 * (size_t)n);  // mean x, y, conic a, b, c, depth, box packed below
   std::vector<int32_t> all_boxes(4 * (size_t)n);
   const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
@@ -350,11 +356,11 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
   }
   int64_t v_count = 0;
   for (int64_t g = 0; g < n; ++g) v_count += out_r[g] > 0;
-  auto index = torch::empty({v_count}, opts.dtype(torch::kInt64));
-  auto means2d = torch::empty({v_count, 2}, opts);
-  auto conics = torch::empty({v_count, 3}, opts);
-  auto depths = torch::empty({v_count}, opts);
-  auto boxes = torch::empty({v_count, 4}, opts.dtype(torch::kInt32));
+  auto index = at::empty({v_count}, opts.dtype(at::kLong));
+  auto means2d = at::empty({v_count, 2}, opts);
+  auto conics = at::empty({v_count, 3}, opts);
+  auto depths = at::empty({v_count}, opts);
+  auto boxes = at::empty({v_count, 4}, opts.dtype(at::kInt));
   int64_t* idx = index.data_ptr<int64_t>();
   float *out_m = means2d.data_ptr<float>(), *out_c = conics.data_ptr<float>(), *out_d = depths.data_ptr<float>();
   int32_t* out_b = boxes.data_ptr<int32_t>();
@@ -373,16 +379,16 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
 
 // Gradients of project_forward's means2d, conics and depths [V, ...] with respect to means,
 // quats and scales [N, ...] (zero for culled Gaussians).
-std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                            torch::Tensor viewmat, torch::Tensor index, double fx, double fy,
+std::vector<at::Tensor> project_backward(at::Tensor means, at::Tensor quats, at::Tensor scales,
+                                            at::Tensor viewmat, at::Tensor index, double fx, double fy,
                                             double cx, double cy, int64_t width, int64_t height,
-                                            double near_plane, torch::Tensor v_means2d, torch::Tensor v_conics,
-                                            torch::Tensor v_depths) {
+                                            double near_plane, at::Tensor v_means2d, at::Tensor v_conics,
+                                            at::Tensor v_depths) {
   const int64_t v_count = index.size(0);
   const Intrinsics k = make_intrinsics(fx, fy, cx, cy, width, height, near_plane);
-  auto v_means = torch::zeros_like(means);
-  auto v_quats = torch::zeros_like(quats);
-  auto v_scales = torch::zeros_like(scales);
+  auto v_means = at::zeros_like(means);
+  auto v_quats = at::zeros_like(quats);
+  auto v_scales = at::zeros_like(scales);
   const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
   const float* view = viewmat.data_ptr<float>();
   const int64_t* idx = index.data_ptr<int64_t>();
@@ -471,7 +477,7 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
 // Tile lists: tile_offsets [T+1] and ids [M] (rows of boxes), each tile's ids front to back,
 // ties by id. One stable sort of all depths, then every tile's list is filled in that order.
 // Tiles are row-major, ceil(width/16) per row.
-std::vector<torch::Tensor> bin_tiles(torch::Tensor boxes, torch::Tensor depths, int64_t width, int64_t height) {
+std::vector<at::Tensor> bin_tiles(at::Tensor boxes, at::Tensor depths, int64_t width, int64_t height) {
   const int64_t n = boxes.size(0);
   const int tiles_x = (int)((width + kTile - 1) / kTile), tiles_y = (int)((height + kTile - 1) / kTile);
   const int n_tiles = tiles_x * tiles_y;
@@ -500,7 +506,7 @@ std::vector<torch::Tensor> bin_tiles(torch::Tensor boxes, torch::Tensor depths, 
     order.swap(order_tmp);
   }
 
-  auto offsets = torch::zeros({n_tiles + 1}, boxes.options());
+  auto offsets = at::zeros({n_tiles + 1}, boxes.options());
   int32_t* off = offsets.data_ptr<int32_t>();
   for (int64_t g = 0; g < n; ++g) {
     const int32_t* bg = b + 4 * g;
@@ -509,7 +515,7 @@ std::vector<torch::Tensor> bin_tiles(torch::Tensor boxes, torch::Tensor depths, 
       for (int tx = bg[0] / kTile; tx < (bg[2] + kTile - 1) / kTile; ++tx) ++off[ty * tiles_x + tx + 1];
   }
   for (int t = 0; t < n_tiles; ++t) off[t + 1] += off[t];
-  auto ids = torch::empty({(int64_t)off[n_tiles]}, boxes.options());
+  auto ids = at::empty({(int64_t)off[n_tiles]}, boxes.options());
   int32_t* id = ids.data_ptr<int32_t>();
   std::vector<int32_t> cursor(off, off + n_tiles);
   for (int64_t i = 0; i < n; ++i) {
@@ -760,9 +766,9 @@ void rasterize_backward_tiles(const float* mu, const float* con, const float* op
 
 // Composites values [V,C] front to back. Returns image [H,W,C], transmittance [H,W] and the
 // index (into tile_ids) of each pixel's last contributing Gaussian [H,W] (int32, -1: none).
-std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
-                                             torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
-                                             torch::Tensor tile_ids, int64_t width, int64_t height) {
+std::vector<at::Tensor> rasterize_forward(at::Tensor means2d, at::Tensor conics, at::Tensor opacities,
+                                             at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
+                                             at::Tensor tile_ids, int64_t width, int64_t height) {
   const int64_t n = means2d.size(0);
   check_rows(means2d, "means2d", n, 2);
   check_rows(conics, "conics", n, 3);
@@ -771,9 +777,9 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tenso
   TORCH_CHECK(values.dim() == 2 && values.size(0) == n, "values must have shape [", n, ", C]");
   const int C = (int)values.size(1);
   auto opts = values.options();
-  auto image = torch::empty({height, width, C}, opts);
-  auto transmittance = torch::empty({height, width}, opts);
-  auto last = torch::empty({height, width}, opts.dtype(torch::kInt32));
+  auto image = at::empty({height, width, C}, opts);
+  auto transmittance = at::empty({height, width}, opts);
+  auto last = at::empty({height, width}, opts.dtype(at::kInt));
   const float *mu = means2d.data_ptr<float>(), *con = conics.data_ptr<float>(), *op = opacities.data_ptr<float>();
   const float* val = values.data_ptr<float>();
   const int32_t *box = boxes.data_ptr<int32_t>(), *off = tile_offsets.data_ptr<int32_t>(), *ids = tile_ids.data_ptr<int32_t>();
@@ -795,10 +801,10 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tenso
 
 // Backward of rasterize_forward for the image and alpha = 1 - transmittance. Returns
 // v_means2d [V,2], v_conics [V,3], v_opacities [V], v_values [V,C].
-std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
-                                              torch::Tensor values, torch::Tensor boxes, torch::Tensor tile_offsets,
-                                              torch::Tensor tile_ids, torch::Tensor transmittance,
-                                              torch::Tensor last, torch::Tensor v_image, torch::Tensor v_alpha) {
+std::vector<at::Tensor> rasterize_backward(at::Tensor means2d, at::Tensor conics, at::Tensor opacities,
+                                              at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
+                                              at::Tensor tile_ids, at::Tensor transmittance,
+                                              at::Tensor last, at::Tensor v_image, at::Tensor v_alpha) {
   const int64_t n = means2d.size(0), height = transmittance.size(0), width = transmittance.size(1);
   const int C = (int)values.size(1);
   const int stride = 6 + C;
@@ -821,7 +827,7 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tens
     case 6: run(std::integral_constant<int, 6>{}); break;
     default: run(std::integral_constant<int, 0>{});
   }
-  auto total = torch::empty({n, stride}, values.options());
+  auto total = at::empty({n, stride}, values.options());
   float* tot = total.data_ptr<float>();
   const int64_t count = n * stride;
 #pragma omp parallel for schedule(static)
@@ -834,12 +840,12 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor means2d, torch::Tens
           total.slice(1, 6, stride).contiguous()};
 }
 
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("sh_forward", &sh_forward, "spherical-harmonics colours of the visible Gaussians");
-  m.def("sh_backward", &sh_backward, "backward of sh_forward");
-  m.def("project_forward", &project_forward, "EWA projection of 3D Gaussians, culled and compacted");
-  m.def("project_backward", &project_backward, "backward of project_forward");
-  m.def("bin_tiles", &bin_tiles, "16x16 tile lists sorted by depth");
-  m.def("rasterize_forward", &rasterize_forward, "front-to-back compositing of C channels");
-  m.def("rasterize_backward", &rasterize_backward, "backward of rasterize_forward");
+TORCH_LIBRARY(TORCH_EXTENSION_NAME, m) {
+  m.def("sh_forward", &sh_forward);  // spherical-harmonics colours of the visible Gaussians
+  m.def("sh_backward", &sh_backward);  // backward of sh_forward
+  m.def("project_forward", &project_forward);  // EWA projection of 3D Gaussians, culled and compacted
+  m.def("project_backward", &project_backward);  // backward of project_forward
+  m.def("bin_tiles", &bin_tiles);  // 16x16 tile lists sorted by depth
+  m.def("rasterize_forward", &rasterize_forward);  // front-to-back compositing of C channels
+  m.def("rasterize_backward", &rasterize_backward);  // backward of rasterize_forward
 }

@@ -15,7 +15,13 @@
 // empty space is known its samples crowd into the few occupied cells, never closer than
 // min_step. The Python twins in backbones/nerf/reference.py define the same results in torch.
 
-#include <torch/extension.h>
+// The few ATen headers these kernels use, not <torch/extension.h>: that one takes 28 s of a
+// 35 s build (it parses all of libtorch's C++ API and pybind11); docs/gs_cpu.md, "Build time".
+#include <ATen/core/Tensor.h>
+#include <ATen/Dispatch.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/zeros.h>
+#include <torch/library.h>
 #include <omp.h>
 
 #include <algorithm>
@@ -27,7 +33,7 @@
 
 namespace {
 
-void check_cpu(const torch::Tensor& t, const char* name) {
+void check_cpu(const at::Tensor& t, const char* name) {
   TORCH_CHECK(t.device().is_cpu() && t.is_contiguous(), name, " must be a contiguous CPU tensor");
 }
 
@@ -54,8 +60,8 @@ inline void corners(const scalar_t* p, int64_t resolution, int64_t offset, int64
   }
 }
 
-void check_grid_args(const torch::Tensor& positions, const torch::Tensor& table, const torch::Tensor& resolutions,
-                     const torch::Tensor& offsets) {
+void check_grid_args(const at::Tensor& positions, const at::Tensor& table, const at::Tensor& resolutions,
+                     const at::Tensor& offsets) {
   check_cpu(positions, "positions");
   check_cpu(table, "table");
   check_cpu(resolutions, "resolutions");
@@ -63,7 +69,7 @@ void check_grid_args(const torch::Tensor& positions, const torch::Tensor& table,
   TORCH_CHECK(positions.dim() == 2 && positions.size(1) == 3, "positions must have shape [M, 3]");
   TORCH_CHECK(table.dim() == 2, "table must have shape [V, F]");
   TORCH_CHECK(positions.scalar_type() == table.scalar_type(), "positions and table must have the same dtype");
-  TORCH_CHECK(resolutions.scalar_type() == torch::kInt64 && offsets.scalar_type() == torch::kInt64,
+  TORCH_CHECK(resolutions.scalar_type() == at::kLong && offsets.scalar_type() == at::kLong,
               "resolutions and offsets must be int64");
   TORCH_CHECK(resolutions.numel() == offsets.numel(), "one offset per level");
   const int64_t* res = resolutions.data_ptr<int64_t>();
@@ -125,11 +131,11 @@ void with_feature_count(int64_t features, Kernel kernel) {
   }
 }
 
-torch::Tensor grid_encode_forward(torch::Tensor positions, torch::Tensor table, torch::Tensor resolutions,
-                                  torch::Tensor offsets) {
+at::Tensor grid_encode_forward(at::Tensor positions, at::Tensor table, at::Tensor resolutions,
+                                  at::Tensor offsets) {
   check_grid_args(positions, table, resolutions, offsets);
   const int64_t M = positions.size(0), F = table.size(1), L = resolutions.numel();
-  auto features = torch::empty({M, L * F}, table.options());
+  auto features = at::empty({M, L * F}, table.options());
   AT_DISPATCH_FLOATING_TYPES(table.scalar_type(), "grid_encode_forward", [&] {
     with_feature_count<scalar_t>(F, [&](auto width) {
       encode_forward_kernel<scalar_t, decltype(width)::value>(
@@ -140,14 +146,14 @@ torch::Tensor grid_encode_forward(torch::Tensor positions, torch::Tensor table, 
   return features;
 }
 
-torch::Tensor grid_encode_backward(torch::Tensor grad_features, torch::Tensor positions, torch::Tensor resolutions,
-                                   torch::Tensor offsets, int64_t table_rows) {
+at::Tensor grid_encode_backward(at::Tensor grad_features, at::Tensor positions, at::Tensor resolutions,
+                                   at::Tensor offsets, int64_t table_rows) {
   check_cpu(grad_features, "grad_features");
   const int64_t M = positions.size(0), L = resolutions.numel();
   TORCH_CHECK(grad_features.dim() == 2 && grad_features.size(0) == M && grad_features.size(1) % L == 0,
               "grad_features must have shape [M, levels * F]");
   const int64_t F = grad_features.size(1) / L;
-  auto grad_table = torch::zeros({table_rows, F}, grad_features.options());
+  auto grad_table = at::zeros({table_rows, F}, grad_features.options());
   check_grid_args(positions, grad_table, resolutions, offsets);
   AT_DISPATCH_FLOATING_TYPES(grad_features.scalar_type(), "grid_encode_backward", [&] {
     with_feature_count<scalar_t>(F, [&](auto width) {
@@ -221,15 +227,15 @@ void occupied_intervals(const float* p0, const float* dn, float t_near, float t_
   }
 }
 
-std::vector<torch::Tensor> march_rays(torch::Tensor origins, torch::Tensor directions, torch::Tensor t_near,
-                                      torch::Tensor t_far, torch::Tensor occupancy, torch::Tensor center,
-                                      double scale, double min_step, int64_t max_samples, torch::Tensor jitter) {
+std::vector<at::Tensor> march_rays(at::Tensor origins, at::Tensor directions, at::Tensor t_near,
+                                      at::Tensor t_far, at::Tensor occupancy, at::Tensor center,
+                                      double scale, double min_step, int64_t max_samples, at::Tensor jitter) {
   for (auto* t : {&origins, &directions, &t_near, &t_far, &center}) {
     check_cpu(*t, "marching inputs");
-    TORCH_CHECK(t->scalar_type() == torch::kFloat32, "marching inputs must be float32");
+    TORCH_CHECK(t->scalar_type() == at::kFloat, "marching inputs must be float32");
   }
   check_cpu(occupancy, "occupancy");
-  TORCH_CHECK(occupancy.scalar_type() == torch::kUInt8 && occupancy.dim() == 3 &&
+  TORCH_CHECK(occupancy.scalar_type() == at::kByte && occupancy.dim() == 3 &&
                   occupancy.size(0) == occupancy.size(1) && occupancy.size(1) == occupancy.size(2),
               "occupancy must be a uint8 tensor [G, G, G]");
   const int64_t N = origins.size(0), S = max_samples, G = occupancy.size(0);
@@ -237,12 +243,12 @@ std::vector<torch::Tensor> march_rays(torch::Tensor origins, torch::Tensor direc
   const bool stratified = jitter.numel() > 0;
   if (stratified) {
     check_cpu(jitter, "jitter");
-    TORCH_CHECK(jitter.scalar_type() == torch::kFloat32 && jitter.dim() == 2 && jitter.size(0) == N &&
+    TORCH_CHECK(jitter.scalar_type() == at::kFloat && jitter.dim() == 2 && jitter.size(0) == N &&
                     jitter.size(1) == S, "jitter must be float32 [N, max_samples]");
   }
-  auto t_out = torch::zeros({N, S}, origins.options());
-  auto delta_out = torch::zeros({N, S}, origins.options());
-  auto counts = torch::zeros({N}, origins.options().dtype(torch::kInt64));
+  auto t_out = at::zeros({N, S}, origins.options());
+  auto delta_out = at::zeros({N, S}, origins.options());
+  auto counts = at::zeros({N}, origins.options().dtype(at::kLong));
   const float* o = origins.data_ptr<float>();
   const float* d = directions.data_ptr<float>();
   const float* tn = t_near.data_ptr<float>();
@@ -293,8 +299,8 @@ std::vector<torch::Tensor> march_rays(torch::Tensor origins, torch::Tensor direc
 
 }  // namespace
 
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("grid_encode_forward", &grid_encode_forward, "multi-resolution trilinear grid features");
-  m.def("grid_encode_backward", &grid_encode_backward, "gradient of grid_encode_forward to the table");
-  m.def("march_rays", &march_rays, "stratified samples over the occupied stretches of each ray");
+TORCH_LIBRARY(TORCH_EXTENSION_NAME, m) {
+  m.def("grid_encode_forward", &grid_encode_forward);  // multi-resolution trilinear grid features
+  m.def("grid_encode_backward", &grid_encode_backward);  // gradient of grid_encode_forward to the table
+  m.def("march_rays", &march_rays);  // stratified samples over the occupied stretches of each ray
 }

@@ -4,7 +4,14 @@
 // (six passes over 134 MB at 512 x 512 px, hidden 128): most of a whole-image 3DGS step. Here each
 // pixel's latent lives in registers and a small buffer; the backward pass recomputes it instead of
 // storing it. The torch twin is `h2l_cc_reference` in mono_hdr_plugin/core/converters.py.
-#include <torch/extension.h>
+
+// The few ATen headers these kernels use, not <torch/extension.h>: that one takes 28 s of a
+// 35 s build (it parses all of libtorch's C++ API and pybind11); docs/gs_cpu.md, "Build time".
+#include <ATen/core/Tensor.h>
+#include <ATen/Dispatch.h>
+#include <ATen/ops/empty_like.h>
+#include <ATen/ops/zeros.h>
+#include <torch/library.h>
 #include <omp.h>
 
 #include <cmath>
@@ -49,10 +56,10 @@ struct Pixel {
 };
 
 // w1 [hidden, 3] -> w1t [3, hidden], so that the per-pixel loops over hidden units read contiguously
-torch::Tensor transposed_latent(const torch::Tensor& w1) { return w1.t().contiguous(); }
+at::Tensor transposed_latent(const at::Tensor& w1) { return w1.t().contiguous(); }
 
-void check_inputs(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1, const torch::Tensor& w2,
-                  const torch::Tensor& b2) {
+void check_inputs(const at::Tensor& x, const at::Tensor& w1, const at::Tensor& b1, const at::Tensor& w2,
+                  const at::Tensor& b2) {
     TORCH_CHECK(x.dim() == 2 && x.size(1) == 3 && x.is_contiguous(), "h2l_cc: x must be contiguous [N, 3]");
     TORCH_CHECK(w1.dim() == 2 && w1.size(1) == 3, "h2l_cc: latent weight must be [hidden, 3]");
     const int64_t hidden = w1.size(0);
@@ -144,11 +151,11 @@ void backward_pixels(const scalar_t* gop, const scalar_t* xp, const scalar_t* w1
 
 }  // namespace
 
-torch::Tensor h2l_forward(torch::Tensor x, torch::Tensor w1, torch::Tensor b1, torch::Tensor w2, torch::Tensor b2) {
+at::Tensor h2l_forward(at::Tensor x, at::Tensor w1, at::Tensor b1, at::Tensor w2, at::Tensor b2) {
     check_inputs(x, w1, b1, w2, b2);
     const int64_t n = x.size(0), hidden = w1.size(0);
     auto w1t = transposed_latent(w1);
-    auto out = torch::empty_like(x);
+    auto out = at::empty_like(x);
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "h2l_forward", [&] {
         forward_pixels<scalar_t>(x.data_ptr<scalar_t>(), w1t.data_ptr<scalar_t>(), b1.data_ptr<scalar_t>(),
                                  w2.data_ptr<scalar_t>(), b2.data_ptr<scalar_t>(), out.data_ptr<scalar_t>(), n,
@@ -157,16 +164,16 @@ torch::Tensor h2l_forward(torch::Tensor x, torch::Tensor w1, torch::Tensor b1, t
     return out;
 }
 
-std::vector<torch::Tensor> h2l_backward(torch::Tensor grad_out, torch::Tensor x, torch::Tensor w1, torch::Tensor b1,
-                                        torch::Tensor w2, torch::Tensor b2) {
+std::vector<at::Tensor> h2l_backward(at::Tensor grad_out, at::Tensor x, at::Tensor w1, at::Tensor b1,
+                                        at::Tensor w2, at::Tensor b2) {
     check_inputs(x, w1, b1, w2, b2);
     grad_out = grad_out.contiguous();
     TORCH_CHECK(grad_out.sizes() == x.sizes(), "h2l_cc: grad_out must have the shape of x");
     const int64_t n = x.size(0), hidden = w1.size(0);
     auto w1t = transposed_latent(w1);
-    auto grad_x = torch::empty_like(x);
+    auto grad_x = at::empty_like(x);
     const int threads = omp_get_max_threads();
-    auto partial = torch::zeros({threads, 10 * hidden + kHeads}, x.options());
+    auto partial = at::zeros({threads, 10 * hidden + kHeads}, x.options());
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "h2l_backward", [&] {
         backward_pixels<scalar_t>(grad_out.data_ptr<scalar_t>(), x.data_ptr<scalar_t>(), w1t.data_ptr<scalar_t>(),
                                   b1.data_ptr<scalar_t>(), w2.data_ptr<scalar_t>(), b2.data_ptr<scalar_t>(),
@@ -180,7 +187,7 @@ std::vector<torch::Tensor> h2l_backward(torch::Tensor grad_out, torch::Tensor x,
     return {grad_x, grad_w1, grad_b1, grad_w2, grad_b2};
 }
 
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.def("h2l_forward", &h2l_forward, "H2L-CC forward, fused per pixel");
-    m.def("h2l_backward", &h2l_backward, "H2L-CC backward, recomputing each pixel's latent");
+TORCH_LIBRARY(TORCH_EXTENSION_NAME, m) {
+    m.def("h2l_forward", &h2l_forward);  // H2L-CC forward, fused per pixel
+    m.def("h2l_backward", &h2l_backward);  // H2L-CC backward, recomputing each pixel's latent
 }

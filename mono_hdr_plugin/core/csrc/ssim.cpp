@@ -5,7 +5,14 @@
 // maps: about 117 ms forward and backward at 512 x 512 px on one thread, most of it in the
 // convolutions. Here the five statistics are filtered in one separable pass (11 taps, "valid"
 // windows only, as the twin keeps), and the backward pass filters three gradient maps back.
-#include <torch/extension.h>
+
+// The few ATen headers these kernels use, not <torch/extension.h>: that one takes 28 s of a
+// 35 s build (it parses all of libtorch's C++ API and pybind11); docs/gs_cpu.md, "Build time".
+#include <ATen/core/Tensor.h>
+#include <ATen/Dispatch.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/empty_like.h>
+#include <torch/library.h>
 #include <omp.h>
 
 #include <memory>
@@ -98,7 +105,7 @@ void filter_back(const scalar_t* in, const scalar_t* g, int64_t h, int64_t w, sc
     }
 }
 
-void check_inputs(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& window) {
+void check_inputs(const at::Tensor& x, const at::Tensor& y, const at::Tensor& window) {
     TORCH_CHECK(x.dim() == 3 && x.is_contiguous() && y.sizes() == x.sizes() && y.is_contiguous(),
                 "ssim: x and y must be contiguous [C, H, W] of one shape");
     TORCH_CHECK(x.size(1) >= kTaps && x.size(2) >= kTaps, "ssim: images need at least 11 pixels a side");
@@ -172,11 +179,11 @@ void backward_channels(const scalar_t* gm, const scalar_t* xp, const scalar_t* y
 }  // namespace
 
 // The SSIM map [C, H - 10, W - 10] and the filtered statistics [C, 5, H - 10, W - 10] the backward pass reads.
-std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch::Tensor window, double c1, double c2) {
+std::vector<at::Tensor> ssim_forward(at::Tensor x, at::Tensor y, at::Tensor window, double c1, double c2) {
     check_inputs(x, y, window);
     const int64_t channels = x.size(0), h = x.size(1), w = x.size(2);
-    auto map = torch::empty({channels, h - kTaps + 1, w - kTaps + 1}, x.options());
-    auto stats = torch::empty({channels, 5, h - kTaps + 1, w - kTaps + 1}, x.options());
+    auto map = at::empty({channels, h - kTaps + 1, w - kTaps + 1}, x.options());
+    auto stats = at::empty({channels, 5, h - kTaps + 1, w - kTaps + 1}, x.options());
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "ssim_forward", [&] {
         forward_channels<scalar_t>(x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), window.data_ptr<scalar_t>(),
                                    map.data_ptr<scalar_t>(), stats.data_ptr<scalar_t>(), channels, h, w,
@@ -186,8 +193,8 @@ std::vector<torch::Tensor> ssim_forward(torch::Tensor x, torch::Tensor y, torch:
 }
 
 // d(sum(grad_map * map)) / dx. y is a constant (a training target).
-torch::Tensor ssim_backward(torch::Tensor grad_map, torch::Tensor x, torch::Tensor y, torch::Tensor stats,
-                            torch::Tensor window, double c1, double c2) {
+at::Tensor ssim_backward(at::Tensor grad_map, at::Tensor x, at::Tensor y, at::Tensor stats,
+                            at::Tensor window, double c1, double c2) {
     check_inputs(x, y, window);
     TORCH_CHECK(stats.is_contiguous() && stats.dim() == 4 && stats.size(0) == x.size(0) && stats.size(1) == 5,
                 "ssim: stats must be the forward pass's [C, 5, H - 10, W - 10]");
@@ -196,7 +203,7 @@ torch::Tensor ssim_backward(torch::Tensor grad_map, torch::Tensor x, torch::Tens
     TORCH_CHECK(grad_map.dim() == 3 && grad_map.size(0) == channels && grad_map.size(1) == h - kTaps + 1 &&
                     grad_map.size(2) == w - kTaps + 1,
                 "ssim: grad_map must be [C, H - 10, W - 10]");
-    auto grad_x = torch::empty_like(x);
+    auto grad_x = at::empty_like(x);
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "ssim_backward", [&] {
         backward_channels<scalar_t>(grad_map.data_ptr<scalar_t>(), x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(),
                                     stats.data_ptr<scalar_t>(), window.data_ptr<scalar_t>(), grad_x.data_ptr<scalar_t>(), channels, h, w,
@@ -205,7 +212,7 @@ torch::Tensor ssim_backward(torch::Tensor grad_map, torch::Tensor x, torch::Tens
     return grad_x;
 }
 
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.def("ssim_forward", &ssim_forward, "SSIM map [C, H - 10, W - 10] of two images [C, H, W], and its filtered statistics");
-    m.def("ssim_backward", &ssim_backward, "gradient of the SSIM map with respect to the first image");
+TORCH_LIBRARY(TORCH_EXTENSION_NAME, m) {
+    m.def("ssim_forward", &ssim_forward);  // SSIM map [C, H - 10, W - 10] of two images [C, H, W], and its filtered statistics
+    m.def("ssim_backward", &ssim_backward);  // gradient of the SSIM map with respect to the first image
 }
