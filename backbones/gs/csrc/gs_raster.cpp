@@ -142,7 +142,7 @@ inline float view_direction(const float* mean, const float* center, float* dir) 
 // Colours [V, 3] (without 3DGS's +0.5) of the Gaussians `index` [V] seen from `center` [3].
 // sh_dc [N, 1, 3] and sh_rest [N, K - 1, 3] are the coefficients; `degree` the active degree.
 at::Tensor sh_forward(at::Tensor sh_dc, at::Tensor sh_rest, at::Tensor means, at::Tensor index,
-                         at::Tensor center, int64_t degree) {
+                      at::Tensor center, int64_t degree) {
   check_cpu_float(sh_dc, "sh_dc");
   check_cpu_float(sh_rest, "sh_rest");
   check_cpu_float(means, "means");
@@ -174,8 +174,8 @@ at::Tensor sh_forward(at::Tensor sh_dc, at::Tensor sh_rest, at::Tensor means, at
 
 // Gradients of sh_forward with respect to sh_dc, sh_rest and means (through the view direction).
 std::vector<at::Tensor> sh_backward(at::Tensor sh_dc, at::Tensor sh_rest, at::Tensor means,
-                                       at::Tensor index, at::Tensor center, int64_t degree,
-                                       at::Tensor v_colors) {
+                                    at::Tensor index, at::Tensor center, int64_t degree,
+                                    at::Tensor v_colors) {
   check_cpu_float(v_colors, "v_colors");
   const int64_t rest = sh_rest.size(1), v_count = index.size(0);
   const int bases = (int)((degree + 1) * (degree + 1));
@@ -312,8 +312,8 @@ Intrinsics make_intrinsics(double fx, double fy, double cx, double cy, int64_t w
 // conics [V,3], depths [V] and boxes [V,4] (int32 x0, y0, x1, y1, end-exclusive: the pixels
 // where alpha can reach 1/255).
 std::vector<at::Tensor> project_forward(at::Tensor means, at::Tensor quats, at::Tensor scales,
-                                           at::Tensor opacities, at::Tensor viewmat, double fx, double fy,
-                                           double cx, double cy, int64_t width, int64_t height, double near_plane) {
+                                        at::Tensor opacities, at::Tensor viewmat, double fx, double fy,
+                                        double cx, double cy, int64_t width, int64_t height, double near_plane) {
   const int64_t n = means.size(0);
   check_rows(means, "means", n, 3);
   check_rows(quats, "quats", n, 4);
@@ -380,10 +380,10 @@ std::vector<at::Tensor> project_forward(at::Tensor means, at::Tensor quats, at::
 // Gradients of project_forward's means2d, conics and depths [V, ...] with respect to means,
 // quats and scales [N, ...] (zero for culled Gaussians).
 std::vector<at::Tensor> project_backward(at::Tensor means, at::Tensor quats, at::Tensor scales,
-                                            at::Tensor viewmat, at::Tensor index, double fx, double fy,
-                                            double cx, double cy, int64_t width, int64_t height,
-                                            double near_plane, at::Tensor v_means2d, at::Tensor v_conics,
-                                            at::Tensor v_depths) {
+                                         at::Tensor viewmat, at::Tensor index, double fx, double fy,
+                                         double cx, double cy, int64_t width, int64_t height,
+                                         double near_plane, at::Tensor v_means2d, at::Tensor v_conics,
+                                         at::Tensor v_depths) {
   const int64_t v_count = index.size(0);
   const Intrinsics k = make_intrinsics(fx, fy, cx, cy, width, height, near_plane);
   auto v_means = at::zeros_like(means);
@@ -767,8 +767,8 @@ void rasterize_backward_tiles(const float* mu, const float* con, const float* op
 // Composites values [V,C] front to back. Returns image [H,W,C], transmittance [H,W] and the
 // index (into tile_ids) of each pixel's last contributing Gaussian [H,W] (int32, -1: none).
 std::vector<at::Tensor> rasterize_forward(at::Tensor means2d, at::Tensor conics, at::Tensor opacities,
-                                             at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
-                                             at::Tensor tile_ids, int64_t width, int64_t height) {
+                                          at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
+                                          at::Tensor tile_ids, int64_t width, int64_t height) {
   const int64_t n = means2d.size(0);
   check_rows(means2d, "means2d", n, 2);
   check_rows(conics, "conics", n, 3);
@@ -802,9 +802,9 @@ std::vector<at::Tensor> rasterize_forward(at::Tensor means2d, at::Tensor conics,
 // Backward of rasterize_forward for the image and alpha = 1 - transmittance. Returns
 // v_means2d [V,2], v_conics [V,3], v_opacities [V], v_values [V,C].
 std::vector<at::Tensor> rasterize_backward(at::Tensor means2d, at::Tensor conics, at::Tensor opacities,
-                                              at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
-                                              at::Tensor tile_ids, at::Tensor transmittance,
-                                              at::Tensor last, at::Tensor v_image, at::Tensor v_alpha) {
+                                           at::Tensor values, at::Tensor boxes, at::Tensor tile_offsets,
+                                           at::Tensor tile_ids, at::Tensor transmittance,
+                                           at::Tensor last, at::Tensor v_image, at::Tensor v_alpha) {
   const int64_t n = means2d.size(0), height = transmittance.size(0), width = transmittance.size(1);
   const int C = (int)values.size(1);
   const int stride = 6 + C;

@@ -132,7 +132,7 @@ void with_feature_count(int64_t features, Kernel kernel) {
 }
 
 at::Tensor grid_encode_forward(at::Tensor positions, at::Tensor table, at::Tensor resolutions,
-                                  at::Tensor offsets) {
+                               at::Tensor offsets) {
   check_grid_args(positions, table, resolutions, offsets);
   const int64_t M = positions.size(0), F = table.size(1), L = resolutions.numel();
   auto features = at::empty({M, L * F}, table.options());
@@ -147,7 +147,7 @@ at::Tensor grid_encode_forward(at::Tensor positions, at::Tensor table, at::Tenso
 }
 
 at::Tensor grid_encode_backward(at::Tensor grad_features, at::Tensor positions, at::Tensor resolutions,
-                                   at::Tensor offsets, int64_t table_rows) {
+                                at::Tensor offsets, int64_t table_rows) {
   check_cpu(grad_features, "grad_features");
   const int64_t M = positions.size(0), L = resolutions.numel();
   TORCH_CHECK(grad_features.dim() == 2 && grad_features.size(0) == M && grad_features.size(1) % L == 0,
@@ -228,8 +228,8 @@ void occupied_intervals(const float* p0, const float* dn, float t_near, float t_
 }
 
 std::vector<at::Tensor> march_rays(at::Tensor origins, at::Tensor directions, at::Tensor t_near,
-                                      at::Tensor t_far, at::Tensor occupancy, at::Tensor center,
-                                      double scale, double min_step, int64_t max_samples, at::Tensor jitter) {
+                                   at::Tensor t_far, at::Tensor occupancy, at::Tensor center,
+                                   double scale, double min_step, int64_t max_samples, at::Tensor jitter) {
   for (auto* t : {&origins, &directions, &t_near, &t_far, &center}) {
     check_cpu(*t, "marching inputs");
     TORCH_CHECK(t->scalar_type() == at::kFloat, "marching inputs must be float32");

@@ -165,7 +165,7 @@ at::Tensor h2l_forward(at::Tensor x, at::Tensor w1, at::Tensor b1, at::Tensor w2
 }
 
 std::vector<at::Tensor> h2l_backward(at::Tensor grad_out, at::Tensor x, at::Tensor w1, at::Tensor b1,
-                                        at::Tensor w2, at::Tensor b2) {
+                                     at::Tensor w2, at::Tensor b2) {
     check_inputs(x, w1, b1, w2, b2);
     grad_out = grad_out.contiguous();
     TORCH_CHECK(grad_out.sizes() == x.sizes(), "h2l_cc: grad_out must have the shape of x");

@@ -194,7 +194,7 @@ std::vector<at::Tensor> ssim_forward(at::Tensor x, at::Tensor y, at::Tensor wind
 
 // d(sum(grad_map * map)) / dx. y is a constant (a training target).
 at::Tensor ssim_backward(at::Tensor grad_map, at::Tensor x, at::Tensor y, at::Tensor stats,
-                            at::Tensor window, double c1, double c2) {
+                         at::Tensor window, double c1, double c2) {
     check_inputs(x, y, window);
     TORCH_CHECK(stats.is_contiguous() && stats.dim() == 4 && stats.size(0) == x.size(0) && stats.size(1) == 5,
                 "ssim: stats must be the forward pass's [C, 5, H - 10, W - 10]");
