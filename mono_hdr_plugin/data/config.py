@@ -38,6 +38,11 @@ class DataConfig:
     scale with them), 2 reproduces the paper's half_res. An LLFF scene's images_N/ is read for N."""
     exposure_seed: int = 0
     """Seed of the multi protocol's random exposure choice and of the studio's sensor noise."""
+    extent: Literal["auto", "bounded", "unbounded"] = "auto"
+    """Whether the scene reaches to infinity (an open sky: the backbones' `auto` settings add an
+    environment behind the scene, NeRF contracts space). auto: a studio scene's content says; a
+    --data folder is decided from its training photos, whatever its metadata claims (docs/outdoor.md,
+    "When a scene counts as unbounded"); bounded / unbounded force it."""
 
     flag_rules: ClassVar = {
         "exposure_index": between(0, 2),

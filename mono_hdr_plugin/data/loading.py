@@ -13,6 +13,7 @@ from mono_hdr_plugin.data.captures import CapturedScene, CapturedView, Shot
 from mono_hdr_plugin.data.config import DataConfig
 from mono_hdr_plugin.data.dataset import SceneData, View, check_hdr_ground_truth, warn_uninformative_hdr
 from mono_hdr_plugin.data.errors import DatasetError
+from mono_hdr_plugin.data.extent import decide_extent
 from mono_hdr_plugin.data.layouts import read_layout
 from mono_hdr_plugin.data.protocols import select_shots
 from mono_hdr_plugin.data.sources import named_scene, scene_names
@@ -155,6 +156,24 @@ def check_image_sizes(scene: CapturedScene, factor: int, min_side: int) -> None:
     )
 
 
+def scene_extent(metadata: dict, train: list[View], config: DataConfig) -> tuple[bool, str]:
+    """Whether the scene is unbounded, and why: --extent when forced, a studio scene's content, else the
+    training photos (data/extent.py); metadata that claims otherwise is named and overruled."""
+    if config.extent != "auto":
+        return config.extent == "unbounded", f"{config.extent} (--extent {config.extent})"
+    if metadata.get("source") == "studio":  # its content has a sky emitter or not
+        if metadata["unbounded"]:
+            return True, "unbounded: the studio scene has a sky emitter"
+        return False, "bounded: the studio scene has no sky emitter"
+    decision = decide_extent([view.image for view in train], [view.camera for view in train])
+    reason = decision.reason
+    declared = metadata.get("declared_unbounded")
+    if declared is not None and declared != decision.unbounded:
+        claim = "unbounded (aabb_scale > 1)" if declared else "bounded (aabb_scale 1)"
+        reason += f"; the transforms file declares it {claim}, overruled: force it with --extent"
+    return decision.unbounded, reason
+
+
 def to_scene_data(scene: CapturedScene, config: DataConfig, min_side: int = 1) -> SceneData:
     """Apply the exposure protocol and --downscale; decode only the chosen photos. `min_side`: the fewest
     pixels a side the caller can use (training and evaluation: SSIM's window)."""
@@ -170,6 +189,7 @@ def to_scene_data(scene: CapturedScene, config: DataConfig, min_side: int = 1) -
         warn_uninformative_hdr(scene.name, notes)
     check_same_size(scene, splits["train"] + splits["test"])
     metadata = {**scene.metadata, "protocol": config.protocol, "exposure_levels": scene.exposure_levels}
+    metadata["unbounded"], metadata["extent_reason"] = scene_extent(metadata, splits["train"], config)
     return SceneData(
         name=scene.name,
         train=splits["train"],

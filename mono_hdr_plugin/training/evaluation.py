@@ -139,6 +139,7 @@ def evaluate(
     metrics["radiance_scale"] = pipeline.calibration.scale
     metrics["radiance_units"] = pipeline.calibration.units
     metrics["hdr_basis"] = pipeline.calibration.basis
+    metrics["scene_extent"] = scene.metadata.get("extent_reason", "bounded")
     metrics["test_views"] = len({v.view_id for v in views})
     metrics["ldr_exposure_fitted"] = sum(view.name in fitted for view in views)
     for key in (*HDR_KEYS, *RADIANCE_KEYS, "lpips_ldr", "lpips_hdr"):

@@ -280,7 +280,8 @@ class Trainer:
             basis = hdr_basis(self.scene, self.hdr_views, self.pipeline.exposures)
             weight = self.method.config.hdr_prior_weight
             prior = f"; L_prior weight {weight:g}" if self.prior_response is not None else ""
-            console.print(f"the HDR rests on: {basis}{prior}", markup=False, soft_wrap=True)
+            extent = self.scene.metadata.get("extent_reason", "bounded")
+            console.print(f"the HDR rests on: {basis}{prior}\nscene extent: {extent}", markup=False, soft_wrap=True)
         hooks: list[TrainingHook] = [ProgressBar()] if not config.quiet else []
         if config.eval_every:
             hooks.append(EvaluateEvery(config.eval_every))

@@ -112,14 +112,15 @@ class TestRoundTrip:
         for split in ("train", "test"):
             transforms = json.loads((tmp_path / "nerf" / f"transforms_{split}.json").read_text())
             assert transforms.get("aabb_scale") == (16 if unbounded else None)
-        assert read_layout(tmp_path / "nerf").metadata["unbounded"] is unbounded
+        assert read_layout(tmp_path / "nerf").metadata["declared_unbounded"] is unbounded
 
     @pytest.mark.parametrize("scale, unbounded", [(1, False), (4, True)])
     def test_aabb_scale_of_other_tools_is_read(self, written_nerf, scale, unbounded):
+        """Read as a declaration: the photos decide (tests/data/test_extent.py)."""
         transforms_file = written_nerf / "transforms_train.json"
         transforms = json.loads(transforms_file.read_text())
         transforms_file.write_text(json.dumps({**transforms, "aabb_scale": scale}))
-        assert read_layout(written_nerf).metadata["unbounded"] is unbounded
+        assert read_layout(written_nerf).metadata["declared_unbounded"] is unbounded
 
     def test_bad_aabb_scale_names_the_file(self, written_nerf):
         transforms_file = written_nerf / "transforms_test.json"

@@ -91,11 +91,13 @@ class TestUnbounded:
         assert all(tuple(p) in surfaces for p in captured.points.numpy())
 
     @pytest.mark.parametrize("name", ["backlit-sun", "demo"])
-    def test_flag_survives_the_hdr_nerf_synthetic_layout(self, tmp_path, name):
+    def test_declaration_survives_the_hdr_nerf_synthetic_layout(self, tmp_path, name):
+        """Written as instant-ngp's aabb_scale and read back as a declaration; whether the folder loads
+        as unbounded is its photos' call (tests/data/test_extent.py, at the scenes' real size)."""
         out = synth(SynthConfig(scene=name, out=tmp_path / name, layout="hdr-nerf-synthetic"))
         transforms = json.loads((out / "transforms_train.json").read_text())
         assert transforms.get("aabb_scale", 1) == (16 if name in OUTDOOR else 1)
-        assert load_scene(DataConfig(data=out)).scene_info().unbounded == (name in OUTDOOR)
+        assert load_scene(DataConfig(data=out)).metadata["declared_unbounded"] == (name in OUTDOOR)
 
 
 @pytest.mark.slow

@@ -2,7 +2,8 @@
 
 transforms_{train,test}.json   camera_angle_x; frames: file_path (no extension),
                                transform_matrix (OpenGL camera-to-world); optional aabb_scale
-                               (instant-ngp: > 1 marks an unbounded scene, e.g. one with a sky)
+                               (instant-ngp: > 1 declares an unbounded scene, e.g. one with a sky;
+                               kept as `declared_unbounded`: the photos decide, data/extent.py)
 exposure_{train,test}.json     {file_path + "_<e>.png": seconds}
 <file_path>_<e>.png            e = 0..4 (t1..t5)
 {train,test}_hdr/hdr_%03d.exr  HDR ground truth, index = last "_" token of file_path
@@ -173,7 +174,7 @@ def read(folder: Path) -> CapturedScene:
             "source": str(folder),
             "layout": "hdr-nerf-synthetic",
             "poses": EXACT,  # Blender's cameras, as rendered
-            "unbounded": max(scale_train, scale_test) > 1,
+            "declared_unbounded": max(scale_train, scale_test) > 1,
         },
     )
 
@@ -206,7 +207,8 @@ def write(scene: CapturedScene, folder: Path, bits: int = 8) -> None:
                 write_exr(folder / f"{split}_hdr" / f"hdr_{index:03d}.exr", view.hdr())
             c2w_gl = view.camera.c2w.double() @ OPENGL_TO_OPENCV.double()
             frames.append({"file_path": file_path, "transform_matrix": c2w_gl.tolist()})
-        extent = {"aabb_scale": UNBOUNDED_AABB_SCALE} if scene.metadata.get("unbounded") else {}
+        unbounded = scene.metadata.get("unbounded", scene.metadata.get("declared_unbounded"))
+        extent = {"aabb_scale": UNBOUNDED_AABB_SCALE} if unbounded else {}
         write_json(folder / f"transforms_{split}.json", {"camera_angle_x": angle, **extent, "frames": frames})
         write_json(folder / f"exposure_{split}.json", exposures)
 
