@@ -169,7 +169,7 @@ def scene_extent(metadata: dict, train: list[View], config: DataConfig) -> tuple
     reason = decision.reason
     declared = metadata.get("declared_unbounded")
     if declared is not None and declared != decision.unbounded:
-        claim = "unbounded (aabb_scale > 1)" if declared else "bounded (aabb_scale 1)"
+        claim = "unbounded (aabb_scale > 1)" if declared else "bounded (aabb_scale <= 1)"
         reason += f"; the transforms file declares it {claim}, overruled: force it with --extent"
     return decision.unbounded, reason
 

@@ -173,6 +173,7 @@ class TestEveryLayout:
         loaded = load_scene(DataConfig(data=tmp_path / "data"))
         truth = load_scene(DataConfig(scene=scene)).metadata["unbounded"]
         assert loaded.metadata["unbounded"] is truth, loaded.metadata["extent_reason"]
+        assert "declares" not in loaded.metadata["extent_reason"]  # no field, no claim to overrule
 
     def test_metadata_that_lies_is_overruled(self, tmp_path):
         synth(SynthConfig(scene="demo", out=tmp_path / "data", layout="hdr-nerf-synthetic"))

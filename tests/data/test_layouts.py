@@ -112,7 +112,8 @@ class TestRoundTrip:
         for split in ("train", "test"):
             transforms = json.loads((tmp_path / "nerf" / f"transforms_{split}.json").read_text())
             assert transforms.get("aabb_scale") == (16 if unbounded else None)
-        assert read_layout(tmp_path / "nerf").metadata["declared_unbounded"] is unbounded
+        # absent: the file declares nothing either way
+        assert read_layout(tmp_path / "nerf").metadata["declared_unbounded"] is (True if unbounded else None)
 
     @pytest.mark.parametrize("scale, unbounded", [(1, False), (4, True)])
     def test_aabb_scale_of_other_tools_is_read(self, written_nerf, scale, unbounded):

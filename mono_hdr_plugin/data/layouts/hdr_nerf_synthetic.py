@@ -93,7 +93,9 @@ def _read_split(folder: Path, split: str, first_view_id: int):
     angle = json_number(
         transforms["camera_angle_x"], f"{transforms_file}: camera_angle_x (field of view, radians)", FIELD_OF_VIEW
     )
-    aabb_scale = json_number(transforms.get("aabb_scale", 1), f"{transforms_file}: aabb_scale", POSITIVE)
+    aabb_scale = transforms.get("aabb_scale")  # None: the file declares nothing
+    if aabb_scale is not None:
+        aabb_scale = json_number(aabb_scale, f"{transforms_file}: aabb_scale", POSITIVE)
     poses = []
     first_listed: dict[str, int] = {}  # file_path -> index of the frame that lists it first
     for index, frame in enumerate(frames):
@@ -138,6 +140,7 @@ def read(folder: Path) -> CapturedScene:
             f"{folder}: camera_angle_x differs between transforms_train.json and "
             "transforms_test.json; both splits must share one camera"
         )
+    declared = [scale for scale in (scale_train, scale_test) if scale is not None]
     sizes = {folder / shot.name: image_size(folder / shot.name) for *_, shots in train + test for shot in shots}
     width, height = check_one_size(sizes, folder)
     focal = focal_from_fov(angle_test, width)  # the official loader takes the test file's angle
@@ -174,7 +177,7 @@ def read(folder: Path) -> CapturedScene:
             "source": str(folder),
             "layout": "hdr-nerf-synthetic",
             "poses": EXACT,  # Blender's cameras, as rendered
-            "declared_unbounded": max(scale_train, scale_test) > 1,
+            "declared_unbounded": None if declared == [] else max(declared) > 1,
         },
     )
 
